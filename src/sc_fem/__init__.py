@@ -1,0 +1,52 @@
+"""sc_fem: Squashing Cubes -- any graphics mesh becomes a physically based deformable object.
+
+Pipeline: :func:`load_mesh` -> :func:`voxelize` (a :class:`CubeModel` of elastic cubes) ->
+:func:`assemble` (sparse K, M of hexahedral elements) -> :func:`solve_static`, :func:`modal`
+or a time integrator -> :func:`embed` (trilinear map W) back onto the source mesh.
+
+Units are SI: metres, kilograms, seconds, pascals. Public arrays of points are ``(n, 3)``.
+The public names are imported lazily, so ``import sc_fem`` is cheap and the command line starts fast.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+__version__ = "0.1.0"
+
+# public name -> module that defines it (relative to this package)
+_LAZY: dict[str, str] = {
+    # errors
+    "ScFemError": ".errors", "InputError": ".errors", "MeshError": ".errors",
+    "MeshFileError": ".errors", "MaterialError": ".errors", "ResolutionError": ".errors",
+    "BoundaryConditionError": ".errors", "SolverError": ".errors", "InstabilityError": ".errors",
+    "ModeFileError": ".errors", "RenderError": ".errors",
+    # foundation
+    "load_mesh": ".mesh", "Material": ".material", "lame": ".material",
+    "CubeModel": ".lattice", "voxelize": ".voxelize", "embed": ".embed", "Embedding": ".embed",
+    # FEM core
+    "assemble": ".assemble", "Assembler": ".assemble",
+    "FixSpec": ".boundary", "parse_fix": ".boundary", "fixed_nodes": ".boundary",
+    "solve_static": ".static", "StaticResult": ".static",
+}
+
+_SUBMODULES = ("models", "xpbd", "reconstruct", "render")
+
+__all__ = sorted([*_LAZY, *_SUBMODULES, "__version__"])
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name], __name__), name)
+        globals()[name] = value
+        return value
+    if name in _SUBMODULES:
+        mod = importlib.import_module(f".{name}", __name__)
+        globals()[name] = mod
+        return mod
+    raise AttributeError(f"module 'sc_fem' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

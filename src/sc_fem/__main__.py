@@ -1,0 +1,3 @@
+from sc_fem._cli.main import main
+
+raise SystemExit(main())

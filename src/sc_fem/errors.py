@@ -1,0 +1,52 @@
+"""Exceptions raised by sc_fem (all in one place, meshio style).
+
+Every error the package raises on bad input derives from :class:`ScFemError`, so
+``except sc_fem.ScFemError`` catches all of them. Each also derives from the
+closest builtin (``ValueError``, ``OSError``, ...) so generic handlers keep working.
+"""
+
+from __future__ import annotations
+
+
+class ScFemError(Exception):
+    """Base class of every sc_fem error."""
+
+
+class InputError(ScFemError, ValueError):
+    """An argument has the wrong shape, type or value (names the argument)."""
+
+
+class MeshError(InputError):
+    """A mesh is empty, degenerate, non-finite or has faces indexing missing vertices."""
+
+
+class MeshFileError(ScFemError, OSError):
+    """A mesh file is missing, unreadable, corrupted or of an unknown format."""
+
+
+class MaterialError(InputError):
+    """A material parameter is out of range (E <= 0, nu outside (-1, 0.5), rho <= 0, ...)."""
+
+
+class ResolutionError(InputError):
+    """A voxel resolution or pitch is too small, too large, or would not fit in memory."""
+
+
+class BoundaryConditionError(InputError):
+    """A boundary-condition spec cannot be parsed or selects nothing."""
+
+
+class SolverError(ScFemError, RuntimeError):
+    """A linear/eigen solve failed (e.g. a floating model under load)."""
+
+
+class InstabilityError(SolverError):
+    """A time integration blew up (non-finite state or runaway energy)."""
+
+
+class ModeFileError(ScFemError, OSError):
+    """A mode / animation ``.npz`` file is truncated, corrupted, foreign or of another version."""
+
+
+class RenderError(ScFemError, RuntimeError):
+    """Off-screen rendering is not possible on this machine (says what to install)."""
