@@ -33,6 +33,11 @@ _LAZY: dict[str, str] = {
 
 _SUBMODULES = ("models", "xpbd", "reconstruct", "render")
 
+# Functions that share their module's name are imported eagerly: otherwise ``import
+# sc_fem.voxelize`` (the submodule) would replace the function attribute with the module.
+from .embed import embed  # noqa: E402
+from .voxelize import voxelize  # noqa: E402
+
 __all__ = sorted([*_LAZY, *_SUBMODULES, "__version__"])
 
 

@@ -1,0 +1,76 @@
+"""Options shared by several commands (mesh, grid, material), so every command spells them alike."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from contextlib import contextmanager
+
+
+def add_mesh_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("mesh", metavar="MESH",
+                   help="mesh file (OBJ, STL, PLY, OFF, glTF, VTK/VTU, ...) or builtin:NAME "
+                        "(chair, bridge, rope, beam)")
+
+
+def add_grid_args(p: argparse.ArgumentParser, *, auto: bool = False) -> None:
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--resolution", "-r", default=None,
+                   type=(str if auto else int),
+                   help="cubes along the longest bounding-box axis (default 32)"
+                        + ("; 'auto' picks the coarsest grid whose frequencies have converged" if auto else ""))
+    g.add_argument("--pitch", type=float, default=None, help="cube edge in model units")
+    p.add_argument("--scale", type=float, default=1.0,
+                   help="metres per model unit (a model in millimetres: 0.001); default 1")
+    p.add_argument("--fill", choices=("surface", "solid"), default="surface",
+                   help="surface shell (default) or flood-filled solid")
+    p.add_argument("--method", choices=("sample", "exact"), default="sample",
+                   help="point sampling (default) or exact triangle-cube overlap")
+    p.add_argument("--keep", choices=("largest", "all"), default="largest",
+                   help="keep the largest connected component (default) or all")
+
+
+def add_material_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--youngs", type=float, default=None, help="Young's modulus E in Pa")
+    p.add_argument("--poisson", type=float, default=None, help="Poisson's ratio nu in (-1, 0.5)")
+    p.add_argument("--density", type=float, default=None, help="density in kg/m^3")
+    p.add_argument("--mass", type=float, default=None, help="total mass in kg (overrides density)")
+
+
+def voxelize_from_args(args, mesh=None, resolution=None):
+    """Run :func:`sc_fem.voxelize` with the grid/material options of ``args``."""
+    from ..voxelize import voxelize
+
+    res = args.resolution if resolution is None else resolution
+    return voxelize(mesh if mesh is not None else args.mesh, resolution=None if res is None else int(res),
+                    pitch=args.pitch, scale=args.scale, fill=args.fill, method=args.method, keep=args.keep,
+                    youngs=args.youngs, poisson=args.poisson, density=args.density, mass=args.mass)
+
+
+def model_summary(model) -> str:
+    info = model.info
+    rows = [
+        ("source", info.get("source", "")),
+        ("grid", " x ".join(str(int(d)) for d in model.dims) + f"  (pitch {model.pitch:.4g} model units, h {model.h:.4g} m)"),
+        ("cubes / nodes / DOFs", f"{model.n_cubes:,} / {model.n_nodes:,} / {model.n_dofs:,}"),
+        ("samples", f"{info.get('n_samples', 0):,} ({info.get('sampler', '')}, {info.get('method', '')}, fill {info.get('fill', '')})"),
+        ("components", f"{info.get('components_found', model.n_components)} found, "
+                       f"{info.get('dropped_cubes', 0)} cubes dropped"),
+        ("mass", f"{model.total_mass:.6g} kg"),
+        ("E", f"{model.youngs.min():.4g} .. {model.youngs.max():.4g} Pa ({info.get('material', '')})"),
+    ]
+    w = max(len(k) for k, _ in rows)
+    return "\n".join(f"  {k:<{w}}  {v}" for k, v in rows)
+
+
+@contextmanager
+def stage(name: str, timings: dict, quiet: bool = False):
+    """Time a stage and print it to stderr."""
+    t0 = time.perf_counter()
+    if not quiet:
+        print(f"[{name}] ...", file=sys.stderr, flush=True)
+    yield
+    timings[name] = time.perf_counter() - t0
+    if not quiet:
+        print(f"[{name}] {timings[name]:.2f} s", file=sys.stderr, flush=True)

@@ -1,0 +1,131 @@
+"""Vertex-animation files (``.npz``): what ``sc-fem simulate`` writes and ``sc-fem reconstruct`` reads.
+
+Schema (``format_version`` 1):
+
+=================  ===============  =====================================================
+key                shape / dtype    meaning
+=================  ===============  =====================================================
+format_version     () int           1
+kind               () str           ``"sc_fem.animation"``
+faces              (m, 3) int64     source-mesh triangles (may be (0, 3) for point sets)
+rest_vertices      (n, 3) float64   rest positions, model units
+times              (T,) float64     seconds, strictly increasing
+positions          (T, n, 3) f32    vertex positions per frame, model units
+energy             (T,) float64     kinetic + elastic + gravity potential, J (NaN if unknown)
+meta_json          () str           JSON dict: method, dt, material, source, ...
+=================  ===============  =====================================================
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ._atomic import save_npz_atomic
+from ._validate import as_float_array
+from .errors import InputError, ModeFileError
+
+ANIMATION_FORMAT_VERSION = 1
+ANIMATION_KIND = "sc_fem.animation"
+
+
+@dataclass(frozen=True, eq=False)
+class Animation:
+    """A vertex animation of a source mesh.
+
+    Attributes
+    ----------
+    faces : ndarray of int, shape (m, 3)
+    rest_vertices : ndarray, shape (n, 3)
+        Model units.
+    times : ndarray, shape (T,)
+        Seconds.
+    positions : ndarray, shape (T, n, 3)
+        Model units.
+    energy : ndarray, shape (T,)
+        Joules (NaN where not computed).
+    meta : dict
+        Free-form provenance (JSON-serialisable).
+    """
+
+    faces: np.ndarray
+    rest_vertices: np.ndarray
+    times: np.ndarray
+    positions: np.ndarray
+    energy: np.ndarray
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.times)
+
+
+def _check(faces, rest, times, positions, energy) -> None:
+    n = len(rest)
+    if positions.ndim != 3 or positions.shape[1:] != (n, 3):
+        raise InputError(f"positions must have shape (T, {n}, 3), got {positions.shape}")
+    if times.shape != (positions.shape[0],):
+        raise InputError(f"times must have shape ({positions.shape[0]},), got {times.shape}")
+    if len(times) > 1 and np.any(np.diff(times) <= 0):
+        raise InputError("times must be strictly increasing")
+    if energy.shape != times.shape:
+        raise InputError(f"energy must have shape {times.shape}, got {energy.shape}")
+    if faces.size and (faces.min() < 0 or faces.max() >= n):
+        raise InputError("faces index vertices that do not exist")
+
+
+def save_animation(path, *, faces, rest_vertices, times, positions, energy=None, meta=None) -> Path:
+    """Write an animation ``.npz`` atomically (temp file + rename); returns the path."""
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    rest = as_float_array(rest_vertices, "rest_vertices", (-1, 3))
+    times = as_float_array(times, "times", (-1,))
+    positions = as_float_array(positions, "positions", (-1, -1, 3))
+    energy = np.full(times.shape, np.nan) if energy is None else np.asarray(energy, dtype=float)
+    _check(faces, rest, times, positions, energy)
+    return save_npz_atomic(
+        path, format_version=np.int64(ANIMATION_FORMAT_VERSION), kind=np.str_(ANIMATION_KIND),
+        faces=faces, rest_vertices=rest, times=times, positions=positions.astype(np.float32),
+        energy=energy, meta_json=np.str_(json.dumps(meta or {}, default=str)),
+    )
+
+
+def load_animation(path) -> Animation:
+    """Read and validate an animation ``.npz``.
+
+    Raises
+    ------
+    ModeFileError
+        Missing, truncated, corrupted, foreign (not an sc_fem animation) or wrong-version file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ModeFileError(f"animation file not found: {path}")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            data = {k: z[k] for k in z.files}
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as exc:
+        raise ModeFileError(f"{path} is not a readable .npz animation (truncated or corrupted?): {exc}") from None
+    if str(data.get("kind", "")) != ANIMATION_KIND:
+        raise ModeFileError(f"{path} is not an sc_fem animation file (kind={data.get('kind')!r})")
+    version = int(data.get("format_version", -1))
+    if version != ANIMATION_FORMAT_VERSION:
+        raise ModeFileError(f"{path}: unsupported animation format_version {version} "
+                            f"(this sc_fem reads {ANIMATION_FORMAT_VERSION})")
+    missing = {"faces", "rest_vertices", "times", "positions", "energy"} - set(data)
+    if missing:
+        raise ModeFileError(f"{path}: missing keys {sorted(missing)}")
+    faces, rest, times = data["faces"], data["rest_vertices"], data["times"]
+    positions, energy = data["positions"], data["energy"]
+    try:
+        _check(faces, rest, times, positions, energy)
+    except InputError as exc:
+        raise ModeFileError(f"{path}: {exc}") from None
+    if not (np.all(np.isfinite(positions)) and np.all(np.isfinite(rest)) and np.all(np.isfinite(times))):
+        raise ModeFileError(f"{path}: non-finite positions, rest vertices or times")
+    meta = json.loads(str(data.get("meta_json", "{}")))
+    return Animation(faces=faces, rest_vertices=rest, times=times, positions=positions,
+                     energy=energy, meta=meta)

@@ -1,0 +1,123 @@
+"""Static B-spline baseline of the paper (Section 5): a cubic least-squares B-spline with
+``n_control`` control points per curve fitted independently at every fitted frame, and linear
+interpolation (point by point) between neighbouring fitted frames.
+
+Each frame's spline is parametrised by that frame's own normalised chord length (a static
+fit uses only its own frame); clamped uniform knots on [0, 1]. The least squares is the same as
+``scipy.interpolate.make_lsq_spline`` (checked in the tests) but batched over frames, curves and
+coordinates with one sparse design matrix.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import BSpline
+
+from .._validate import as_float_array, positive_int
+from ..errors import InputError
+from .param import parametrize
+from .pde import _check_curves, _check_times
+
+DEGREE = 3
+
+
+def clamped_knots(n_control: int, k: int = DEGREE) -> np.ndarray:
+    """Clamped uniform knot vector on [0, 1] for ``n_control`` coefficients of degree ``k``."""
+    inner = np.linspace(0.0, 1.0, n_control - k + 1)
+    return np.concatenate([np.zeros(k), inner, np.ones(k)])
+
+
+@dataclass(frozen=True, eq=False)
+class BSplineModel:
+    """Per-frame B-splines at the fitted frames, linear interpolation in between.
+
+    Attributes
+    ----------
+    control_points : ndarray, shape (F, C, n_control, 3)
+    knots : ndarray, shape (n_control + 4,)
+    u : ndarray, shape (F, C, P)
+        Parameter of every point at every fitted frame.
+    fit_times : ndarray, shape (F,)
+        Times of the fitted frames (caller's units).
+    """
+
+    control_points: np.ndarray
+    knots: np.ndarray
+    u: np.ndarray
+    fit_times: np.ndarray
+
+    @property
+    def n_parameters(self) -> int:
+        """Scalars: F x C x n_control x 3 (the paper counts points: F x C x n_control)."""
+        return int(self.control_points.size)
+
+    @property
+    def n_control_points(self) -> int:
+        """Control points (the paper's count, e.g. 6 x 24 x 50 = 7200)."""
+        return int(np.prod(self.control_points.shape[:3]))
+
+    def frame_points(self) -> np.ndarray:
+        """Spline points at the fitted frames, shape (F, C, P, 3)."""
+        f, c, p = self.u.shape
+        b = BSpline.design_matrix(self.u.ravel(), self.knots, DEGREE).toarray()
+        b = b.reshape(f, c, p, -1)
+        return np.einsum("fcpk,fckw->fcpw", b, self.control_points)
+
+    def evaluate(self, t) -> np.ndarray:
+        """Points at time(s) ``t`` (caller's units), clamped to the fitted time range.
+
+        Returns
+        -------
+        ndarray, shape (C, P, 3) for scalar ``t``, (len(t), C, P, 3) for an array.
+        """
+        t_arr = np.asarray(t, dtype=float)
+        tt = np.clip(np.atleast_1d(t_arr).ravel(), self.fit_times[0], self.fit_times[-1])
+        pts = self.frame_points()
+        i = np.clip(np.searchsorted(self.fit_times, tt, side="right") - 1, 0, len(self.fit_times) - 2)
+        lam = ((tt - self.fit_times[i]) / (self.fit_times[i + 1] - self.fit_times[i]))[:, None, None, None]
+        out = (1.0 - lam) * pts[i] + lam * pts[i + 1]
+        return out[0] if t_arr.ndim == 0 else out
+
+
+def bspline_baseline(curves, times, fit_frames, n_control: int = 50, u=None) -> BSplineModel:
+    """Fit the static B-spline baseline at ``fit_frames``.
+
+    Parameters
+    ----------
+    curves : array_like, shape (F_all, C, P, 3)
+        All frames (only ``fit_frames`` are used), model units.
+    times : array_like, shape (F_all,)
+    fit_frames : sequence of int
+        Indices of the fitted frames (>= 2, increasing).
+    n_control : int
+        Control points per curve (>= 4, <= P).
+    u : array_like, shape (P,) or (C, P), optional
+        Explicit parameter values in [0, 1] (same for every frame); default: each frame's own
+        normalised chord length.
+    """
+    x = _check_curves(curves, min_frames=1)
+    t = _check_times(times, x.shape[0])
+    n_control = positive_int(n_control, "n_control", minimum=DEGREE + 1)
+    idx = np.asarray(fit_frames)
+    if idx.ndim != 1 or idx.size < 2 or not np.issubdtype(idx.dtype, np.integer):
+        raise InputError(f"fit_frames must be >= 2 integer frame indices, got {fit_frames!r}")
+    if idx.min() < 0 or idx.max() >= x.shape[0] or np.any(np.diff(idx) <= 0):
+        raise InputError(f"fit_frames must be strictly increasing indices in [0, {x.shape[0] - 1}], got {idx.tolist()}")
+    if n_control > x.shape[2]:
+        raise InputError(f"n_control ({n_control}) must not exceed the points per curve ({x.shape[2]})")
+    xf = x[idx]                                                    # (F, C, P, 3)
+    f, c, p, _ = xf.shape
+    if u is None:
+        u = parametrize(xf.reshape(f * c, p, 3), "arclength").reshape(f, c, p)
+    else:
+        u = as_float_array(u, "u")
+        if u.shape not in ((p,), (c, p)) or u.min() < 0 or u.max() > 1:
+            raise InputError(f"u must have shape ({p},) or ({c}, {p}) with values in [0, 1], got shape {u.shape}")
+        u = np.broadcast_to(u, (f, c, p)).copy()
+    knots = clamped_knots(n_control)
+    b = BSpline.design_matrix(u.ravel(), knots, DEGREE).toarray().reshape(f, c, p, n_control)
+    bp = np.linalg.pinv(b)                                         # (F, C, n_control, P)
+    ctrl = np.einsum("fckp,fcpw->fckw", bp, xf)
+    return BSplineModel(control_points=ctrl, knots=knots, u=u, fit_times=t[idx])

@@ -1,0 +1,327 @@
+"""PDE-based dynamic reconstruction (paper Section 4): fit Eq. 17 to curves at key frames.
+
+Model, per curve ``c`` and coordinate ``w in {x, y, z}`` of the rigid-aligned curve::
+
+    w_c(u, t) = sum_{i<4, j<8} C[c, w, i, j] T_i(t) U_j(u)        (Eq. 17, 32 constants)
+
+Times are normalised internally: ``s = (t - t_first) / (t_last - t_first)`` over the fitted
+frames, so the paper's frames 0..10 map to ``s = 0.0 .. 1.0``. ``u`` is a fixed material
+coordinate per point (see :mod:`.param`).
+
+Because ``u`` is fixed per point, the data of every curve and coordinate is a frames x points
+grid ``X`` and the 32-column design matrix of Eq. 25 is the Kronecker product ``T (x) U``; the
+least-squares solution is therefore exactly ``C = pinv(T) X pinv(U)^T`` (column-scaled, SVD
+truncation at ``rcond``), done for all curves and coordinates in one batched computation.
+
+``r`` and ``alpha`` are not given by the paper. The constants are linear, so ``(r, alpha)`` are
+found by variable projection: for each pair solve the linear problem, minimise the residual on a
+log-spaced grid, then refine with bounded L-BFGS-B in log space. ``alpha`` is bounded by the
+Nyquist rate ``pi / max(ds)`` of the fitted frames (beyond it ``sin(alpha t)`` aliases: it fits
+the frames and oscillates in between). ``criterion="loo"`` minimises instead the
+leave-one-interior-frame-out prediction error, which targets the skipped frames directly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import minimize
+
+from .._validate import as_float_array, positive_scalar
+from ..errors import InputError
+from .basis import N_SPACE, N_TIME, paper_scale, space_basis, time_basis
+from .param import PARAMETRIZATIONS, parametrize
+from .rigid import RIGID_INTERPOLATIONS, RigidMotion
+from .rigid import remove_rigid as _remove_rigid
+
+CRITERIA = ("residual", "loo")
+
+
+@dataclass(frozen=True, eq=False)
+class SearchResult:
+    """The (r, alpha) search: grid (nr,), (na,), objective (nr, na) and the refined optimum."""
+
+    r_grid: np.ndarray
+    alpha_grid: np.ndarray
+    objective: np.ndarray
+    criterion: str
+    best_objective: float
+
+
+@dataclass(frozen=True, eq=False)
+class PDEModel:
+    """A fitted Eq. 17 model for ``C`` curves (see module docstring).
+
+    Attributes
+    ----------
+    coefficients : ndarray, shape (C, 3, 4, 8)
+        Constants in the shifted (bounded) basis of :mod:`.basis`; paper ``n = 8 i + j + 1``.
+    r, alpha : float
+        Spatial (1 / unit u) and temporal (1 / unit normalised time) rates; ``r_bar = r / sqrt 2``.
+    u : ndarray, shape (C, P)
+        Parameter of every curve point.
+    t0, t1 : float
+        Times of the first and last fitted frames (caller's units, e.g. seconds).
+    fit_times : ndarray, shape (F,)
+    rigid : RigidMotion or None
+        Rigid motion at the fitted frames (interpolated in between), None if not removed.
+    parametrization : str
+    residual_rms : float
+        RMS point-coordinate residual over the fitted frames (aligned frame, model units).
+    search : SearchResult or None
+    """
+
+    coefficients: np.ndarray
+    r: float
+    alpha: float
+    u: np.ndarray
+    t0: float
+    t1: float
+    fit_times: np.ndarray
+    rigid: RigidMotion | None
+    parametrization: str
+    residual_rms: float
+    search: SearchResult | None = None
+
+    @property
+    def n_curves(self) -> int:
+        return self.coefficients.shape[0]
+
+    @property
+    def n_coefficients(self) -> int:
+        """Linear constants: 32 per coordinate per curve = 96 per curve (the paper counts 32)."""
+        return int(self.coefficients.size)
+
+    @property
+    def n_rigid(self) -> int:
+        """Rigid-motion numbers needed to go back to world coordinates: 6 per curve per fitted frame."""
+        return 0 if self.rigid is None else 6 * self.rigid.rotations.shape[0] * self.n_curves
+
+    @property
+    def n_parameters(self) -> int:
+        """True scalar count: coefficients + (r, alpha) + rigid motion (u values not counted, see
+        :attr:`n_parameter_values`)."""
+        return self.n_coefficients + 2 + self.n_rigid
+
+    @property
+    def n_parameter_values(self) -> int:
+        """Number of stored parameter values ``u`` (one per curve point)."""
+        return int(self.u.size)
+
+    @property
+    def paper_coefficients(self) -> np.ndarray:
+        """(C, 3, 32) constants ``c_wn`` of the paper's unshifted basis (may overflow to 0 / inf)."""
+        return self.coefficients.reshape(self.n_curves, 3, 32) * paper_scale(self.r, self.alpha)
+
+    def normalize(self, t) -> np.ndarray:
+        """Caller's times -> normalised time ``s`` (0 at the first fitted frame, 1 at the last)."""
+        return (np.asarray(t, dtype=float) - self.t0) / (self.t1 - self.t0)
+
+    def evaluate_aligned(self, t, normalized: bool = False) -> np.ndarray:
+        """Curves in the rigid-aligned frame, shape (C, P, 3) or (len(t), C, P, 3)."""
+        t_arr = np.asarray(t, dtype=float)
+        s = np.atleast_1d(t_arr if normalized else self.normalize(t_arr))
+        if not np.all(np.isfinite(s)):
+            raise InputError("t must be finite")
+        tb = time_basis(s.ravel(), self.alpha)                     # (nt, 4)
+        ub = space_basis(self.u, self.r)                           # (C, P, 8)
+        out = np.einsum("ti,cwij,cpj->tcpw", tb, self.coefficients, ub)
+        return out[0] if t_arr.ndim == 0 else out
+
+    def evaluate(self, t, normalized: bool = False) -> np.ndarray:
+        """Curves at time(s) ``t`` (caller's units, or normalised if ``normalized``), world frame.
+
+        Returns
+        -------
+        ndarray, shape (C, P, 3) for scalar ``t``, (len(t), C, P, 3) for an array.
+        """
+        t_arr = np.asarray(t, dtype=float)
+        s = np.atleast_1d(t_arr if normalized else self.normalize(t_arr)).ravel()
+        aligned = self.evaluate_aligned(s, normalized=True)
+        out = aligned if self.rigid is None else self.rigid.to_world(aligned, s)
+        return out[0] if t_arr.ndim == 0 else out
+
+
+# ----------------------------------------------------------------------------- linear algebra
+def _svd(a: np.ndarray):
+    """Column-normalised thin SVD of (batched) ``a``: ``a / n = q diag(sv) vt``."""
+    n = np.linalg.norm(a, axis=-2)
+    n = np.where(n > 0, n, 1.0)
+    q, sv, vt = np.linalg.svd(a / n[..., None, :], full_matrices=False)
+    return q, sv, vt, n
+
+
+def _project(x: np.ndarray, tb: np.ndarray, ub: np.ndarray, rcond: float):
+    """Truncated projection of data ``x`` (C, 3, F, P) onto span(T (x) U).
+
+    The Kronecker design matrix has singular values ``st_a * su_b``; pairs below ``rcond`` times
+    the largest are dropped *jointly* (truncating T and U separately would leave a product
+    condition number up to cond(T) * cond(U) and lose all precision in the coefficients).
+    Returns ``z`` (C, 3, 4, 8) coordinates in the orthonormal bases and the SVD factors.
+    """
+    qt, st, vtt, tn = _svd(tb)
+    qu, su, vtu, un = _svd(ub)
+    prod = st[None, :, None] * su[:, None, :]                           # (C, 4, 8)
+    mask = prod > rcond * prod.max(axis=(1, 2), keepdims=True)
+    z = np.einsum("fa,cwfp,cpb->cwab", qt, x, qu) * mask[:, None]
+    return z, (qt, st, vtt, tn), (qu, su, vtu, un), mask
+
+
+def _solve(x: np.ndarray, s: np.ndarray, u: np.ndarray, r: float, alpha: float, rcond: float) -> np.ndarray:
+    """Coefficients (C, 3, 4, 8) of the separable least squares for data ``x`` (C, 3, F, P)."""
+    z, (qt, st, vtt, tn), (qu, su, vtu, un), mask = _project(x, time_basis(s, alpha), space_basis(u, r), rcond)
+    inv = np.where(mask, 1.0 / np.where(mask, st[None, :, None] * su[:, None, :], 1.0), 0.0)
+    coef = np.einsum("ai,cwab,cbj->cwij", vtt, z * inv[:, None], vtu)
+    return coef / (tn[None, None, :, None] * un[:, None, None, :])
+
+
+def _objective(x: np.ndarray, s: np.ndarray, u: np.ndarray, r: float, alpha: float, rcond: float,
+               criterion: str) -> float:
+    """Sum of squared residuals (``"residual"``) or of leave-one-interior-frame-out errors."""
+    tb, ub = time_basis(s, alpha), space_basis(u, r)
+    if criterion == "residual":
+        z, (qt, *_), (qu, *_), _ = _project(x, tb, ub, rcond)
+        return float(np.sum((x - np.einsum("fa,cwab,cpb->cwfp", qt, z, qu)) ** 2))
+    total = 0.0
+    for j in range(1, len(s) - 1):     # loop over held-out frames (a handful)
+        keep = np.arange(len(s)) != j
+        z, (qt, st, vtt, tn), (qu, *_), _ = _project(x[:, :, keep], tb[keep], ub, rcond)
+        g = (vtt @ (tb[j] / tn)) / st                                   # row j in the SVD basis
+        pred = np.einsum("a,cwab,cpb->cwp", g, z, qu)
+        total += float(np.sum((x[:, :, j] - pred) ** 2))
+    return total
+
+
+def _search(x, s, u, r, alpha, bounds_r, bounds_a, grid, rcond, criterion):
+    rg = np.array([r]) if r is not None else np.geomspace(*bounds_r, grid[0])
+    ag = np.array([alpha]) if alpha is not None else np.geomspace(*bounds_a, grid[1])
+    obj = np.array([[_objective(x, s, u, ri, ai, rcond, criterion) for ai in ag] for ri in rg])
+    i, j = np.unravel_index(np.argmin(obj), obj.shape)
+    free = [k for k, v in enumerate((r, alpha)) if v is None]
+    start = np.log([rg[i], ag[j]])
+    lims = np.log([bounds_r, bounds_a])
+
+    floor = 1e-30 * (float(np.sum(x * x)) + 1e-300)
+
+    def f(z):   # log of the objective: the optimum may be an exact fit (objective -> 0)
+        p = start.copy()
+        p[free] = z
+        return np.log(_objective(x, s, u, *np.exp(p), rcond, criterion) + floor)
+
+    f0 = f(start[free])
+    res = minimize(f, start[free], method="L-BFGS-B", bounds=[tuple(lims[k]) for k in free],
+                   options={"ftol": 1e-14, "gtol": 1e-10, "maxiter": 200})
+    best = start.copy()
+    if res.fun < f0:
+        best[free] = res.x
+    r_opt, a_opt = np.exp(best)
+    return float(r_opt), float(a_opt), SearchResult(rg, ag, obj, criterion, float(np.exp(min(res.fun, f0)) - floor))
+
+
+# ----------------------------------------------------------------------------- public fit
+def _check_curves(curves, name: str = "curves", min_frames: int = 2) -> np.ndarray:
+    x = as_float_array(curves, name, finite=False)
+    if x.ndim != 4 or x.shape[-1] != 3:
+        raise InputError(f"{name} must have shape (n_frames, n_curves, n_points, 3), got {x.shape}")
+    if x.shape[0] < min_frames:
+        raise InputError(f"{name} has {x.shape[0]} frame(s); at least {min_frames} are needed to fit motion")
+    if x.shape[1] < 1 or x.shape[2] < 8:
+        raise InputError(f"{name} needs >= 1 curve of >= 8 points (8 space functions), got {x.shape[1:3]}")
+    if not np.all(np.isfinite(x)):
+        raise InputError(f"{name} contains {int(np.count_nonzero(~np.isfinite(x)))} non-finite value(s)")
+    return x
+
+
+def _check_times(times, n_frames: int) -> np.ndarray:
+    t = as_float_array(times, "times", (-1,))
+    if len(t) != n_frames:
+        raise InputError(f"times must have one entry per frame ({n_frames}), got {len(t)}")
+    if np.any(np.diff(t) <= 0):
+        raise InputError("times must be strictly increasing")
+    return t
+
+
+def fit(curves, times, r: float | None = None, alpha: float | None = None, remove_rigid: bool = True,
+        parametrization: str = "paper", u=None, *, rigid_interpolation: str = "cubic",
+        criterion: str = "residual", r_bounds: tuple[float, float] = (0.2, 30.0),
+        alpha_bounds: tuple[float, float] | None = None, grid: tuple[int, int] = (14, 14),
+        rcond: float = 1e-11) -> PDEModel:
+    """Fit the PDE model of Eq. 17 to curves at the fitted (key) frames.
+
+    Parameters
+    ----------
+    curves : array_like, shape (F, C, P, 3)
+        Curve points at the fitted frames, model units; point ``k`` is the same material point
+        in every frame and point 0 is the curve's first point (Eq. 19).
+    times : array_like, shape (F,)
+        Strictly increasing times of these frames (any unit; normalised internally to [0, 1]).
+    r, alpha : float, optional
+        Spatial and temporal rates (``alpha = r^2 sqrt(K/m)``); searched if None.
+    remove_rigid : bool
+        Remove per-curve rigid motion first (Eqs. 18-23) and restore it when evaluating.
+    parametrization : {"paper", "arclength"}
+        How ``u`` is computed from the first (aligned) frame; see :mod:`.param`.
+    u : array_like, shape (P,) or (C, P), optional
+        Explicit parameter values (override ``parametrization``).
+    rigid_interpolation : {"cubic", "linear"}
+        Interpolation of the rigid motion between fitted frames (see :mod:`.rigid`).
+    criterion : {"residual", "loo"}
+        Search objective: residual at the fitted frames (variable projection, default) or
+        leave-one-interior-frame-out prediction error.
+    r_bounds, alpha_bounds : (float, float)
+        Search bounds; ``alpha_bounds`` defaults to ``(0.05, pi / max(ds))`` (Nyquist).
+    grid : (int, int)
+        Coarse grid size (log-spaced) before the bounded refinement.
+    rcond : float
+        Relative cut-off on the singular values of the column-scaled Kronecker design matrix.
+
+    Returns
+    -------
+    PDEModel
+    """
+    x = _check_curves(curves)
+    n_f, n_c, n_p, _ = x.shape
+    t = _check_times(times, n_f)
+    if parametrization not in PARAMETRIZATIONS:
+        raise InputError(f"parametrization must be one of {PARAMETRIZATIONS}, got {parametrization!r}")
+    if rigid_interpolation not in RIGID_INTERPOLATIONS:
+        raise InputError(f"rigid_interpolation must be one of {RIGID_INTERPOLATIONS}, got {rigid_interpolation!r}")
+    if criterion not in CRITERIA:
+        raise InputError(f"criterion must be one of {CRITERIA}, got {criterion!r}")
+    if criterion == "loo" and n_f < 3:
+        raise InputError("criterion='loo' needs at least 3 fitted frames")
+    r = None if r is None else positive_scalar(r, "r")
+    alpha = None if alpha is None else positive_scalar(alpha, "alpha")
+    s = (t - t[0]) / (t[-1] - t[0])
+    if remove_rigid:
+        al = _remove_rigid(x)
+        aligned = al.aligned
+        rigid = RigidMotion(s, al.rotations, al.anchors, rigid_interpolation)
+    else:
+        aligned, rigid = x, None
+    if u is None:
+        uu = parametrize(aligned[0], parametrization)
+        pname = parametrization
+    else:
+        uu = as_float_array(u, "u")
+        if uu.shape == (n_p,):
+            uu = np.broadcast_to(uu, (n_c, n_p)).copy()
+        if uu.shape != (n_c, n_p):
+            raise InputError(f"u must have shape ({n_p},) or ({n_c}, {n_p}), got {uu.shape}")
+        pname = "explicit"
+    data = np.ascontiguousarray(aligned.transpose(1, 3, 0, 2))    # (C, 3, F, P)
+    search = None
+    if r is None or alpha is None:
+        ds = float(np.max(np.diff(s)))
+        ab = alpha_bounds if alpha_bounds is not None else (0.05, np.pi / ds)
+        if not (0 < r_bounds[0] < r_bounds[1] and 0 < ab[0] < ab[1]):
+            raise InputError(f"bounds must be 0 < low < high, got r_bounds={r_bounds}, alpha_bounds={ab}")
+        r, alpha, search = _search(data, s, uu, r, alpha, r_bounds, ab, grid, rcond, criterion)
+    coef = _solve(data, s, uu, r, alpha, rcond)
+    fitted = np.einsum("fi,cwij,cpj->cwfp", time_basis(s, alpha), coef, space_basis(uu, r))
+    rms = float(np.sqrt(np.mean((fitted - data) ** 2)))
+    return PDEModel(coefficients=coef, r=float(r), alpha=float(alpha), u=uu, t0=float(t[0]),
+                    t1=float(t[-1]), fit_times=t, rigid=rigid, parametrization=pname,
+                    residual_rms=rms, search=search)
+

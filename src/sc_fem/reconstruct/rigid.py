@@ -1,0 +1,146 @@
+"""Rigid-motion removal of the paper's Eqs. 18-23 and its interpolation at frames that were not fitted.
+
+Per curve and frame: (Eq. 19) translate so the curve's first point coincides with the first point
+at frame 0, then (Eqs. 20-23) rotate about that point onto the frame-0 curve. The least squares
+of Eq. 23 has the closed form of Kabsch (SVD of the 3x3 cross-covariance, with a reflection guard
+so that ``det R = +1``). The paper multiplies row vectors by ``A``; here ``aligned = pivot +
+R (x - anchor)`` with column vectors, i.e. ``R = A^T``.
+
+The rigid motion is only known at the fitted frames. At other times it is interpolated:
+rotations by SLERP between neighbouring fitted frames (``"linear"``) or by a cubic spline of the
+rotation vectors relative to frame 0 (``"cubic"``, valid for rotations below pi, which holds for a
+swinging rope), and the anchor (first point) linearly or by a cubic spline. The error this adds
+is reported by ``benchmarks/reconstruction.py`` (oracle rigid motion vs interpolated).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import CubicSpline, make_interp_spline
+from scipy.spatial.transform import Rotation
+
+from ..errors import InputError
+
+RIGID_INTERPOLATIONS = ("linear", "cubic")
+
+
+@dataclass(frozen=True, eq=False)
+class RigidAlignment:
+    """Result of :func:`remove_rigid`.
+
+    Attributes
+    ----------
+    aligned : ndarray, shape (F, C, P, 3)
+        Curves with the rigid motion removed (frame 0 unchanged).
+    rotations : ndarray, shape (F, C, 3, 3)
+        ``R`` per frame and curve (``rotations[0]`` is the identity).
+    anchors : ndarray, shape (F, C, 3)
+        First point of every curve at every frame (model units).
+    """
+
+    aligned: np.ndarray
+    rotations: np.ndarray
+    anchors: np.ndarray
+
+    @property
+    def pivot(self) -> np.ndarray:
+        """(C, 3) first points at frame 0, the point the curves are rotated about."""
+        return self.anchors[0]
+
+
+def kabsch(q: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Batched best rotation ``R`` minimising ``sum_k |R q_k - p_k|^2`` (closed form of Eq. 23).
+
+    Parameters
+    ----------
+    q, p : ndarray, shape (..., P, 3)
+
+    Returns
+    -------
+    ndarray, shape (..., 3, 3), proper rotations (``det = +1``).
+    """
+    h = np.einsum("...ki,...kj->...ij", q, p)
+    uu, _, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(np.swapaxes(vt, -1, -2) @ np.swapaxes(uu, -1, -2)))
+    d = np.where(d == 0, 1.0, d)
+    fix = np.ones(h.shape[:-2] + (3,))
+    fix[..., 2] = d
+    return np.swapaxes(vt, -1, -2) @ (fix[..., :, None] * np.swapaxes(uu, -1, -2))
+
+
+def remove_rigid(curves) -> RigidAlignment:
+    """Remove per-curve rigid motion relative to frame 0 (paper Eqs. 18-23).
+
+    Parameters
+    ----------
+    curves : array_like, shape (F, C, P, 3)
+        Model units.
+    """
+    x = np.asarray(curves, dtype=float)
+    if x.ndim != 4 or x.shape[-1] != 3:
+        raise InputError(f"curves must have shape (n_frames, n_curves, n_points, 3), got {x.shape}")
+    anchors = x[:, :, 0, :]
+    q = x - anchors[:, :, None, :]
+    p = q[0]
+    rot = kabsch(q, np.broadcast_to(p, q.shape))
+    rot[0] = np.eye(3)
+    aligned = anchors[0][None, :, None, :] + np.einsum("fcij,fcpj->fcpi", rot, q)
+    return RigidAlignment(aligned=aligned, rotations=rot, anchors=anchors)
+
+
+@dataclass(frozen=True, eq=False)
+class RigidMotion:
+    """Rigid motion known at key times, interpolated in between (see module docstring).
+
+    Attributes
+    ----------
+    key_times : ndarray, shape (F,)
+        Normalised times of the fitted frames.
+    rotations : ndarray, shape (F, C, 3, 3)
+    anchors : ndarray, shape (F, C, 3)
+    interpolation : str
+        ``"linear"`` (SLERP + linear anchor) or ``"cubic"`` (cubic splines of rotation vectors
+        and anchors; needs >= 3 key frames, otherwise falls back to linear).
+    """
+
+    key_times: np.ndarray
+    rotations: np.ndarray
+    anchors: np.ndarray
+    interpolation: str = "cubic"
+
+    @property
+    def pivot(self) -> np.ndarray:
+        return self.anchors[0]
+
+    def at(self, s) -> tuple[np.ndarray, np.ndarray]:
+        """Rotations (nt, C, 3, 3) and anchors (nt, C, 3) at normalised times ``s`` (nt,)."""
+        s = np.atleast_1d(np.asarray(s, dtype=float))
+        kt, n_c = self.key_times, self.rotations.shape[1]
+        cubic = self.interpolation == "cubic" and len(kt) >= 3
+        if cubic:
+            anchors = CubicSpline(kt, self.anchors, axis=0)(s)
+            rv = Rotation.from_matrix(self.rotations.reshape(-1, 3, 3)).as_rotvec().reshape(len(kt), n_c, 3)
+            rot = Rotation.from_rotvec(CubicSpline(kt, rv, axis=0)(s).reshape(-1, 3)).as_matrix()
+            return rot.reshape(len(s), n_c, 3, 3), anchors
+        anchors = make_interp_spline(kt, self.anchors, k=1, axis=0)(s)
+        i = np.clip(np.searchsorted(kt, s, side="right") - 1, 0, len(kt) - 2)
+        frac = (s - kt[i]) / (kt[i + 1] - kt[i])
+        r0 = Rotation.from_matrix(self.rotations[i].reshape(-1, 3, 3))
+        r1 = Rotation.from_matrix(self.rotations[i + 1].reshape(-1, 3, 3))
+        step = (r0.inv() * r1).as_rotvec() * np.repeat(frac, n_c)[:, None]
+        rot = (r0 * Rotation.from_rotvec(step)).as_matrix()
+        return rot.reshape(len(s), n_c, 3, 3), anchors
+
+    def to_world(self, aligned: np.ndarray, s) -> np.ndarray:
+        """Inverse of the alignment: ``x = anchor(s) + R(s)^T (aligned - pivot)``.
+
+        Parameters
+        ----------
+        aligned : ndarray, shape (nt, C, P, 3)
+        s : array_like, shape (nt,)
+        """
+        rot, anchors = self.at(s)
+        rel = aligned - self.pivot[None, :, None, :]
+        return anchors[:, :, None, :] + np.einsum("tcji,tcpj->tcpi", rot, rel)

@@ -1,0 +1,545 @@
+"""XPBD (Macklin, Mueller & Chentanez 2016) on the Squashing Cubes lattice.
+
+Algorithm 1 of the paper, per substep of length ``dt_s = dt / substeps``:
+
+1. prediction ``x0 = x + dt_s v + dt_s^2 g`` (fixed nodes have inverse mass 0 and do not move);
+2. ``iterations`` solver passes; each constraint ``C`` with compliance ``alpha`` (scaled
+   ``alpha~ = alpha / dt_s^2``) updates its Lagrange multiplier
+   ``dlam = (-C - alpha~ lam) / (sum_i w_i |grad_i C|^2 + alpha~)``, ``lam += dlam``,
+   ``x_i += w_i grad_i C dlam`` -- the multipliers accumulate across iterations;
+3. velocity update ``v = (x - x_prev) / dt_s``, then optional mass-proportional damping.
+
+Constraints (``constraints=``):
+
+``"neohookean"`` (default) -- Macklin & Mueller 2021 ("A constraint-based formulation of stable
+    Neo-Hookean materials") from the *same* material as the FEM: per cube a hydrostatic
+    constraint ``C_H = det F - gamma`` (``gamma = 1 + mu / lam_nh``, compliance ``1 / (lam_nh V)``)
+    and a deviatoric one ``C_D = sqrt(mean_cube |F|^2)`` (compliance ``1 / (mu V)``), with
+    ``lam_nh = lambda + mu`` so that the linearisation at rest is exactly linear elasticity with the
+    model's Lame parameters (``CubeModel.lame()``). Both are solved together as a 2x2 block per
+    cube, so the rest state is an exact fixed point of every iteration.
+
+    Hexahedral quadrature: ``C_H`` uses ``F`` at the cube centre (1-point); alone, 1-point ``F`` has
+    12 zero-energy hourglass modes per cube (including the element bending modes, which makes
+    beams too soft / unstable). ``C_D`` therefore integrates ``|F|^2`` *exactly* over the trilinear
+    cube (``mean |F|^2 = x^T L x / h^2`` with the cube's reference Laplacian ``L``), which is the
+    hourglass-stabilised, selectively-reduced-integrated hex: the ``mu`` term is fully integrated
+    (no hourglass modes), the volumetric term is 1-point (no volumetric locking). Still two
+    scalar constraints per cube, so one vectorized sweep per colour.
+
+``"distance"`` -- classic per-cube distance constraints along the 12 edges, 12 face diagonals and
+    4 body diagonals (a central-force lattice). Stiffnesses ``k_edge = k_face = M h / 12``,
+    ``k_body = M h / 4`` with the P-wave modulus ``M = lambda + 2 mu`` reproduce the uniaxial-strain
+    modulus; a central-force lattice has Poisson's ratio 1/4 (Cauchy relation), so this is only an
+    approximation of the material (the simple variant).
+
+Vectorization: cubes whose (i, j, k) have equal parities share no node, so the lattice splits
+into 8 colours and Gauss-Seidel runs as 8 vectorized sweeps per iteration (distance constraints:
+each cube's 28 constraints form 7 perfect matchings of its 8 corners, so 8 x 7 sweeps). The Jacobi
+variant (``gauss_seidel=False``) updates all constraints at once with under-relaxation
+``relaxation / (max node valence of the constraint)``.
+
+``warm_start=True`` (an extension, off by default = Algorithm 1): the multipliers of the previous
+substep are re-used and their correction applied after the prediction (an explicit force
+predictor). Then a static equilibrium is an exact fixed point for any iteration count, which
+removes the "effective stiffness depends on iterations" bias of XPBD at rest.
+
+Numerical damping: XPBD with few iterations is implicit-Euler-like and dissipates energy; the
+dissipation falls with more substeps (see ``benchmarks/xpbd.py``). ``damping`` adds explicit
+mass-proportional damping ``v <- v / (1 + damping * dt_s)`` (1/s).
+
+Units: positions in metres, velocities m/s, times s, energies J.
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from typing import Iterator
+
+import numpy as np
+
+from ._validate import as_float_array, as_points, positive_int, positive_scalar
+from .errors import BoundaryConditionError, InputError, InstabilityError
+from .lattice import HEX_CORNERS, CubeModel
+
+CONSTRAINTS = ("neohookean", "corotated", "distance")
+
+_SIGNS = 2.0 * HEX_CORNERS - 1.0                      # (8, 3) corner signs s_a
+DN_CENTRE = _SIGNS / 4.0                               # grad N_a at the centre of a unit cube
+
+
+def _reference_laplacian() -> np.ndarray:
+    """``L_ab = int_unit cube grad N_a . grad N_b`` (8, 8), exact by 2x2x2 Gauss."""
+    g = 0.5 + np.array([-0.5, 0.5]) / np.sqrt(3.0)
+    q = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)          # (8, 3)
+    o = HEX_CORNERS[None, :, :]                                                     # (1, 8, 3)
+    f = np.where(o == 1, q[:, None, :], 1.0 - q[:, None, :])                       # (8q, 8a, 3)
+    df = np.where(o == 1, 1.0, -1.0) * np.ones_like(f)
+    grad = np.stack([df[..., 0] * f[..., 1] * f[..., 2], f[..., 0] * df[..., 1] * f[..., 2],
+                     f[..., 0] * f[..., 1] * df[..., 2]], -1)                       # (8q, 8a, 3)
+    return np.einsum("qai,qbi->ab", grad, grad) / 8.0
+
+
+L_REF = _reference_laplacian()
+"""Reference Laplacian of the unit cube, shape (8, 8), in :data:`HEX_CORNERS` order."""
+
+# 7 perfect matchings of the 8 corners (3 edge sets, 3 face-diagonal sets, 1 body-diagonal set)
+def _matchings() -> tuple[np.ndarray, np.ndarray]:
+    pairs, kinds = [], []
+    for a in range(8):
+        for b in range(a + 1, 8):
+            d = np.abs(HEX_CORNERS[a] - HEX_CORNERS[b])
+            pairs.append((a, b, int(d.sum()), tuple(d)))
+    groups = []
+    for kind in (1, 2):   # edges / face diagonals grouped by the axis (edge) or face normal
+        for ax in range(3):
+            sel = [(a, b) for a, b, n, d in pairs if n == kind and
+                   ((kind == 1 and d[ax] == 1) or (kind == 2 and d[ax] == 0))]
+            groups.append(sel)
+            kinds.append(kind)
+    groups.append([(a, b) for a, b, n, _ in pairs if n == 3])
+    kinds.append(3)
+    return np.array(groups, dtype=np.int64), np.array(kinds)
+
+
+MATCHINGS, MATCHING_KIND = _matchings()               # (7, 4, 2), (7,) 1=edge 2=face 3=body
+_P1, _P2 = np.array([1, 2, 0]), np.array([2, 0, 1])    # cyclic index shifts for cofactors
+
+
+@dataclass(frozen=True, eq=False)
+class XPBDState:
+    """State of an XPBD simulation after a step.
+
+    Attributes
+    ----------
+    time : float
+        Seconds since the start.
+    step : int
+        Number of (frame) steps taken.
+    positions : ndarray, shape (m, 3)
+        Node positions, metres.
+    velocities : ndarray, shape (m, 3)
+        Node velocities, m/s.
+    """
+
+    time: float
+    step: int
+    positions: np.ndarray
+    velocities: np.ndarray
+
+
+@dataclass(frozen=True)
+class XPBDEnergy:
+    """Energy split, joules: kinetic, gravity potential (relative to the rest positions),
+    elastic (of the constraints, zero at rest) and their ``total``."""
+
+    kinetic: float
+    gravity: float
+    elastic: float
+
+    @property
+    def total(self) -> float:
+        return self.kinetic + self.gravity + self.elastic
+
+
+def cube_colors(model: CubeModel) -> np.ndarray:
+    """Colour 0..7 of each cube from the parities of its lattice index, shape (n,).
+
+    Two cubes of the same colour share no node."""
+    p = np.asarray(model.cells) % 2
+    return p[:, 0] * 4 + p[:, 1] * 2 + p[:, 2]
+
+
+def neohookean_terms(X: np.ndarray, h: float):
+    """Constraint values and gradients of the stable Neo-Hookean pair for a batch of cubes.
+
+    Parameters
+    ----------
+    X : ndarray, shape (n, 8, 3)
+        Corner positions (metres) in :data:`HEX_CORNERS` order.
+    h : float
+        Rest edge length, metres.
+
+    Returns
+    -------
+    CD : (n,) ``sqrt(mean |F|^2)``;  gD : (n, 8, 3) its gradient;
+    J : (n,) ``det F`` at the centre;  gH : (n, 8, 3) its gradient (``cof(F) grad N_a``).
+    """
+    n = X.shape[0]
+    LX = np.matmul(L_REF, X)                                       # (n, 8, 3)
+    CD = np.sqrt(np.maximum(np.einsum("ij,ij->i", X.reshape(n, 24), LX.reshape(n, 24)), 1e-300)) / h
+    gD = LX * (1.0 / (h * h * CD))[:, None, None]
+    F = np.matmul(X.transpose(0, 2, 1), DN_CENTRE) * (1.0 / h)     # (n, 3, 3), F_jk
+    cof = F[:, _P1[:, None], _P1] * F[:, _P2[:, None], _P2] - F[:, _P1[:, None], _P2] * F[:, _P2[:, None], _P1]
+    J = np.einsum("ij,ij->i", F[:, 0, :], cof[:, 0, :])
+    gH = np.matmul(DN_CENTRE, cof.transpose(0, 2, 1)) * (1.0 / h)  # (n, 8, 3)
+    return CD, gD, J, gH
+
+
+def _polar_rotation(F: np.ndarray) -> np.ndarray:
+    """Rotation factor R of the polar decomposition F = R S (det R = +1), batched (n, 3, 3)."""
+    U, _, Vt = np.linalg.svd(F)
+    R = np.matmul(U, Vt)
+    flip = np.linalg.det(R) < 0
+    if np.any(flip):
+        U[flip, :, 2] *= -1.0
+        R[flip] = np.matmul(U[flip], Vt[flip])
+    return R
+
+
+def corotated_terms(X: np.ndarray, h: float):
+    """Co-rotational pair for a batch of cubes: ``C_D = sqrt(mean_cube |F - R|^2)`` (R = polar
+    rotation of the centre F; exact full integration over the trilinear cube, R held fixed in the
+    gradient as in ARAP) and ``J = det F`` at the centre. Same returns as :func:`neohookean_terms`."""
+    n = X.shape[0]
+    LX = np.matmul(L_REF, X)
+    F = np.matmul(X.transpose(0, 2, 1), DN_CENTRE) * (1.0 / h)
+    R = _polar_rotation(F)
+    E = (np.einsum("ij,ij->i", X.reshape(n, 24), LX.reshape(n, 24)) / (h * h)
+         - 2.0 * np.einsum("ij,ij->i", R.reshape(n, 9), F.reshape(n, 9)) + 3.0)
+    CD = np.sqrt(np.maximum(E, 0.0))
+    gE = LX * (1.0 / (h * h)) - np.matmul(DN_CENTRE, R.transpose(0, 2, 1)) * (1.0 / h)   # grad E / 2
+    gD = gE * (1.0 / np.maximum(CD, 1e-12))[:, None, None]
+    cof = F[:, _P1[:, None], _P1] * F[:, _P2[:, None], _P2] - F[:, _P1[:, None], _P2] * F[:, _P2[:, None], _P1]
+    J = np.einsum("ij,ij->i", F[:, 0, :], cof[:, 0, :])
+    gH = np.matmul(DN_CENTRE, cof.transpose(0, 2, 1)) * (1.0 / h)
+    return CD, gD, J, gH
+
+
+def _as_fixed(fixed, n_nodes: int) -> np.ndarray:
+    """Boolean mask (m,) of fixed nodes from indices or a mask."""
+    if fixed is None:
+        return np.zeros(n_nodes, dtype=bool)
+    arr = np.asarray(fixed)
+    if arr.dtype == bool:
+        if arr.shape != (n_nodes,):
+            raise BoundaryConditionError(f"fixed mask must have shape ({n_nodes},), got {arr.shape}")
+        return arr.copy()
+    if arr.size == 0:
+        return np.zeros(n_nodes, dtype=bool)
+    if not np.issubdtype(arr.dtype, np.integer) or arr.ndim != 1:
+        raise BoundaryConditionError(f"fixed must be a 1-D array of node indices or a bool mask, "
+                                     f"got dtype {arr.dtype} shape {arr.shape}")
+    if arr.min() < 0 or arr.max() >= n_nodes:
+        raise BoundaryConditionError(f"fixed node indices must lie in [0, {n_nodes}), got range "
+                                     f"[{arr.min()}, {arr.max()}]")
+    mask = np.zeros(n_nodes, dtype=bool)
+    mask[arr] = True
+    return mask
+
+
+class XPBDSolver:
+    """XPBD time integrator of a :class:`~sc_fem.lattice.CubeModel`.
+
+    Parameters
+    ----------
+    model : CubeModel
+        The lattice (material per cube: ``youngs``, ``poisson``; masses ``model.mass``).
+    dt : float
+        Frame step in seconds (one :meth:`step`); split into ``substeps`` substeps.
+    substeps, iterations : int
+        Substeps per step and solver iterations per substep (J of Algorithm 1).
+    constraints : {"neohookean", "distance"}
+        Constraint family (see the module docstring).
+    gravity : array_like, shape (3,)
+        m/s^2.
+    fixed : array_like of int or bool mask (m,), optional
+        Nodes held at their initial positions.
+    damping : float
+        Mass-proportional damping rate in 1/s (0 = none besides XPBD's numerical damping).
+    gauss_seidel : bool
+        8-colour Gauss-Seidel sweeps (default) or under-relaxed Jacobi.
+    relaxation : float
+        Jacobi relaxation factor ``omega`` (per-constraint step scaled by ``omega / valence``).
+    warm_start : bool
+        Re-use the previous substep's multipliers (see module docstring). False = Algorithm 1.
+    positions, velocities : array_like, shape (m, 3), optional
+        Initial state in metres and m/s (default: rest positions ``model.nodes_m``, zero).
+    """
+
+    def __init__(self, model: CubeModel, dt: float, *, substeps: int = 10, iterations: int = 1,
+                 constraints: str = "neohookean", gravity=(0.0, 0.0, -9.81), fixed=None,
+                 damping: float = 0.0, gauss_seidel: bool = True, relaxation: float = 1.0,
+                 warm_start: bool = False, positions=None, velocities=None) -> None:
+        if not isinstance(model, CubeModel):
+            raise InputError(f"model must be a CubeModel, got {type(model).__name__}")
+        if constraints not in CONSTRAINTS:
+            raise InputError(f"constraints must be one of {CONSTRAINTS}, got {constraints!r}")
+        self.model = model
+        self.dt = positive_scalar(dt, "dt")
+        self.substeps = positive_int(substeps, "substeps")
+        self.iterations = positive_int(iterations, "iterations")
+        self.constraints = constraints
+        self.gravity = as_float_array(gravity, "gravity", (3,)).copy()
+        self.damping = positive_scalar(damping, "damping", allow_zero=True)
+        self.relaxation = positive_scalar(relaxation, "relaxation")
+        if self.relaxation >= 2.0:
+            raise InputError(f"relaxation must be in (0, 2), got {self.relaxation}")
+        self.gauss_seidel = bool(gauss_seidel)
+        self.warm_start = bool(warm_start)
+        m = model.n_nodes
+        self.rest = model.nodes_m.copy()
+        x = self.rest.copy() if positions is None else as_points(positions, "positions").copy()
+        v = np.zeros((m, 3)) if velocities is None else as_points(velocities, "velocities").copy()
+        if x.shape != (m, 3) or v.shape != (m, 3):
+            raise InputError(f"positions and velocities must have shape ({m}, 3), got {x.shape}, {v.shape}")
+        self.fixed = _as_fixed(fixed, m)
+        self.mass = model.node_masses()
+        self.w = np.where(self.fixed, 0.0, 1.0 / self.mass)
+        v[self.fixed] = 0.0
+        self._x, self._v = x, v
+        self.time, self.n_steps = 0.0, 0
+        self.h = model.h
+        self._build()
+
+    # ------------------------------------------------------------------ setup
+    def _build(self) -> None:
+        md = self.model
+        V = self.h ** 3
+        lam, mu = md.lame()
+        colors = cube_colors(md)
+        valence = np.bincount(md.hexes.ravel(), minlength=md.n_nodes)
+        if self.constraints == "neohookean":
+            lam_nh = lam + mu
+            self._gamma = 1.0 + mu / lam_nh
+            self._alphaD = 1.0 / (mu * V)
+            self._alphaH = 1.0 / (lam_nh * V)
+            self._terms = neohookean_terms
+        elif self.constraints == "corotated":
+            self._gamma = np.ones(md.n_cubes)
+            self._alphaD = 1.0 / (2.0 * mu * V)
+            self._alphaH = 1.0 / (lam * V)
+            self._terms = corotated_terms
+        if self.constraints != "distance":
+            self._lamD = np.zeros(md.n_cubes)
+            self._lamH = np.zeros(md.n_cubes)
+            self._groups = [np.flatnonzero(colors == c) for c in range(8) if np.any(colors == c)]
+            self._jac = self.relaxation / valence[md.hexes].max(axis=1)
+            nodes_of = md.hexes
+        else:
+            M = lam + 2.0 * mu
+            kfac = np.where(MATCHING_KIND == 3, 0.25, 1.0 / 12.0)                   # (7,)
+            pairs, k, group = [], [], []
+            for c in range(8):
+                cubes = np.flatnonzero(colors == c)
+                if cubes.size == 0:
+                    continue
+                for g in range(7):
+                    p = md.hexes[cubes][:, MATCHINGS[g]].reshape(-1, 2)          # (4 n_c, 2)
+                    pairs.append(p)
+                    k.append(np.repeat(M[cubes] * self.h * kfac[g], 4))
+                    group.append(np.full(len(p), len(group)))
+            self._pairs = np.concatenate(pairs)
+            self._alpha = 1.0 / np.concatenate(k)
+            self._rest_len = np.linalg.norm(self.rest[self._pairs[:, 1]] - self.rest[self._pairs[:, 0]], axis=1)
+            gid = np.concatenate(group)
+            self._groups = [np.flatnonzero(gid == g) for g in range(len(pairs))]
+            self._lamC = np.zeros(len(self._pairs))
+            nodes_of = self._pairs
+            cval = np.bincount(self._pairs.ravel(), minlength=md.n_nodes)
+            self._jac = self.relaxation / cval[self._pairs].max(axis=1)
+
+        # per group: constraint indices, their nodes and inverse masses (last group = all, for Jacobi)
+        self._gidx = [*self._groups, np.arange(len(nodes_of))]
+        self._gnodes = [nodes_of[i] for i in self._gidx]
+        self._gw = [self.w[nd][..., None] for nd in self._gnodes]
+
+    # ------------------------------------------------------------------ constraint projection
+    def _project_nh(self, x: np.ndarray, g: int, aD: np.ndarray, aH: np.ndarray,
+                    scale=None, accumulate: bool = False):
+        """Project the cube constraints of group ``g`` (2x2 coupled solve per cube)."""
+        idx, hexes, W = self._gidx[g], self._gnodes[g], self._gw[g]
+        X = x[hexes]
+        CD, gD, J, gH = self._terms(X, self.h)
+        aD, aH = aD[idx], aH[idx]
+        WgD, WgH = W * gD, W * gH
+        n = len(idx)
+        A11 = np.einsum("ij,ij->i", WgD.reshape(n, 24), gD.reshape(n, 24)) + aD
+        A22 = np.einsum("ij,ij->i", WgH.reshape(n, 24), gH.reshape(n, 24)) + aH
+        A12 = np.einsum("ij,ij->i", WgD.reshape(n, 24), gH.reshape(n, 24))
+        r1 = -CD - aD * self._lamD[idx]
+        r2 = self._gamma[idx] - J - aH * self._lamH[idx]
+        det = A11 * A22 - A12 * A12
+        dD = (A22 * r1 - A12 * r2) / det
+        dH = (A11 * r2 - A12 * r1) / det
+        if scale is not None:
+            dD, dH = dD * scale[idx], dH * scale[idx]
+        self._lamD[idx] += dD
+        self._lamH[idx] += dH
+        dX = WgD * dD[:, None, None] + WgH * dH[:, None, None]
+        if accumulate:
+            return hexes, dX
+        x[hexes] = X + dX
+        return None
+
+    def _project_dist(self, x: np.ndarray, g: int, alpha: np.ndarray, scale=None,
+                      accumulate: bool = False):
+        """Project the (node-disjoint) distance constraints of group ``g``."""
+        idx, p = self._gidx[g], self._gnodes[g]
+        d = x[p[:, 1]] - x[p[:, 0]]
+        ln = np.linalg.norm(d, axis=1)
+        n = d / np.maximum(ln, 1e-300)[:, None]
+        w0, w1 = self.w[p[:, 0]], self.w[p[:, 1]]
+        a = alpha[idx]
+        dl = (-(ln - self._rest_len[idx]) - a * self._lamC[idx]) / (w0 + w1 + a)
+        if scale is not None:
+            dl = dl * scale[idx]
+        self._lamC[idx] += dl
+        corr = n * dl[:, None]
+        if accumulate:
+            return p, np.stack([-w0[:, None] * corr, w1[:, None] * corr], axis=1)
+        x[p[:, 0]] -= w0[:, None] * corr
+        x[p[:, 1]] += w1[:, None] * corr
+        return None
+
+    def _iteration(self, x: np.ndarray, a_t) -> None:
+        """One solver iteration over all constraints (in place on ``x``)."""
+        project = self._project_dist if self.constraints == "distance" else self._project_nh
+        if self.gauss_seidel:
+            for g in range(len(self._gidx) - 1):
+                project(x, g, *a_t)
+            return
+        nodes, dX = project(x, len(self._gidx) - 1, *a_t, scale=self._jac, accumulate=True)
+        flat = nodes.ravel()
+        for j in range(3):
+            x[:, j] += np.bincount(flat, weights=dX[..., j].ravel(), minlength=len(x))
+
+    def _scaled_compliance(self, ds: float):
+        if self.constraints != "distance":
+            n = self.model.n_cubes
+            return (np.broadcast_to(self._alphaD / ds**2, (n,)), np.broadcast_to(self._alphaH / ds**2, (n,)))
+        return (self._alpha / ds**2,)
+
+    def _apply_multipliers(self, x: np.ndarray, at: np.ndarray) -> None:
+        """Warm start: add ``M^-1 grad C^T lam`` of the stored multipliers, gradients at ``at``."""
+        if self.constraints != "distance":
+            hexes = self.model.hexes
+            _, gD, _, gH = self._terms(at[hexes], self.h)
+            dX = self.w[hexes][..., None] * (gD * self._lamD[:, None, None] + gH * self._lamH[:, None, None])
+            nodes = hexes
+        else:
+            p = self._pairs
+            d = at[p[:, 1]] - at[p[:, 0]]
+            n = d / np.linalg.norm(d, axis=1)[:, None]
+            corr = n * self._lamC[:, None]
+            dX = np.stack([-self.w[p[:, 0]][:, None] * corr, self.w[p[:, 1]][:, None] * corr], axis=1)
+            nodes = p
+        for j in range(3):
+            x[:, j] += np.bincount(nodes.ravel(), weights=dX[..., j].ravel(), minlength=len(x))
+
+    def _reset_multipliers(self) -> None:
+        for name in ("_lamD", "_lamH", "_lamC"):
+            if hasattr(self, name):
+                getattr(self, name)[:] = 0.0
+
+    # ------------------------------------------------------------------ time stepping
+    def substep(self, ds: float) -> None:
+        """Advance by one substep of ``ds`` seconds (Algorithm 1)."""
+        x_prev = self._x
+        free = ~self.fixed
+        x = x_prev + ds * self._v
+        x[free] += ds * ds * self.gravity
+        a_t = self._scaled_compliance(ds)
+        if self.warm_start:
+            self._apply_multipliers(x, x_prev)
+        else:
+            self._reset_multipliers()
+        for _ in range(self.iterations):
+            self._iteration(x, a_t)
+        v = (x - x_prev) / ds
+        if self.damping > 0.0:
+            v /= 1.0 + self.damping * ds
+        self._x, self._v = x, v
+
+    def step(self) -> XPBDState:
+        """Advance one frame step ``dt`` (``substeps`` substeps) and return the new state.
+
+        Raises
+        ------
+        InstabilityError
+            If the positions become non-finite.
+        """
+        ds = self.dt / self.substeps
+        for _ in range(self.substeps):
+            self.substep(ds)
+        self.time += self.dt
+        self.n_steps += 1
+        if not np.all(np.isfinite(self._x)):
+            raise InstabilityError(f"XPBD blew up at t = {self.time:g} s (non-finite positions); "
+                                   f"use more substeps than {self.substeps}")
+        return self.state
+
+    @property
+    def state(self) -> XPBDState:
+        """The current state (copies)."""
+        return XPBDState(time=self.time, step=self.n_steps, positions=self._x.copy(),
+                         velocities=self._v.copy())
+
+    def run(self, n_steps: int, *, progress: bool = False) -> Iterator[XPBDState]:
+        """Yield the current state, then the state after each of ``n_steps`` steps."""
+        n_steps = positive_int(n_steps, "n_steps", minimum=0)
+        yield self.state
+        bar = None
+        if progress:
+            from tqdm import tqdm
+            bar = tqdm(total=n_steps, desc="XPBD", unit="step", file=sys.stderr)
+        try:
+            for _ in range(n_steps):
+                st = self.step()
+                if bar is not None:
+                    bar.update()
+                yield st
+        finally:
+            if bar is not None:
+                bar.close()
+
+    def __iter__(self) -> Iterator[XPBDState]:
+        while True:
+            yield self.step()
+
+    # ------------------------------------------------------------------ diagnostics
+    def constraint_values(self, positions=None) -> dict:
+        """Constraint values at ``positions`` (m, 3) metres (default: current).
+
+        Returns ``{"C_D": (n,), "C_H": (n,)}`` (neohookean; ``C_H = det F - gamma``) or
+        ``{"C": (k,)}`` (distance; ``|x_j - x_i| - L``)."""
+        x = self._x if positions is None else as_points(positions, "positions")
+        if self.constraints != "distance":
+            CD, _, J, _ = self._terms(x[self.model.hexes], self.h)
+            return {"C_D": CD, "C_H": J - self._gamma}
+        p = self._pairs
+        return {"C": np.linalg.norm(x[p[:, 1]] - x[p[:, 0]], axis=1) - self._rest_len}
+
+    def elastic_energy(self, positions=None) -> float:
+        """Elastic energy of the constraints in J, zero at rest:
+        neohookean ``sum V [mu/2 (C_D^2 - 3) + lam_nh/2 (C_H^2 - (mu/lam_nh)^2)]``;
+        distance ``sum k/2 C^2``."""
+        c = self.constraint_values(positions)
+        if self.constraints != "distance":
+            rest_H = (1.0 - self._gamma) ** 2
+            rest_D = 3.0 if self.constraints == "neohookean" else 0.0
+            return float(np.sum((c["C_D"] ** 2 - rest_D) / (2 * self._alphaD)
+                                + (c["C_H"] ** 2 - rest_H) / (2 * self._alphaH)))
+        return float(np.sum(c["C"] ** 2 / (2 * self._alpha)))
+
+    def energy(self, state: XPBDState | None = None) -> XPBDEnergy:
+        """Kinetic + gravity potential (relative to rest) + elastic energy, J."""
+        x = self._x if state is None else state.positions
+        v = self._v if state is None else state.velocities
+        kin = 0.5 * float(np.sum(self.mass[:, None] * v * v))
+        grav = -float(np.sum(self.mass * ((x - self.rest) @ self.gravity)))
+        return XPBDEnergy(kinetic=kin, gravity=grav, elastic=self.elastic_energy(x))
+
+
+def simulate_xpbd(model: CubeModel, dt: float, n_steps: int, *, substeps: int = 10, iterations: int = 1,
+                  constraints: str = "neohookean", gravity=(0.0, 0.0, -9.81), fixed=None,
+                  damping: float = 0.0, gauss_seidel: bool = True, warm_start: bool = False,
+                  progress: bool = False, **kw) -> Iterator[XPBDState]:
+    """Generator of XPBD states: the initial state (t = 0) then ``n_steps`` steps of ``dt`` s.
+
+    See :class:`XPBDSolver` for the parameters."""
+    solver = XPBDSolver(model, dt, substeps=substeps, iterations=iterations, constraints=constraints,
+                        gravity=gravity, fixed=fixed, damping=damping, gauss_seidel=gauss_seidel,
+                        warm_start=warm_start, **kw)
+    yield from solver.run(n_steps, progress=progress)

@@ -1,0 +1,220 @@
+"""voxelize: grid fitting, hashing (vs a loop oracle), mass and material, fill, components,
+the coverage guarantee of the default sampler, sample vs exact, memory guard and bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+import sc_fem
+from sc_fem.errors import InputError, MaterialError, ResolutionError, ScFemError
+from sc_fem.voxelize import grid_for, hash_samples
+
+
+def box_mesh(extents, corner=(0.0, 0.0, 0.0)):
+    m = trimesh.creation.box(extents=extents)
+    m.apply_translation(np.asarray(corner) + np.asarray(extents) / 2)
+    return m
+
+
+# ---------------------------------------------------------------- grid and hashing
+def test_box_multiple_of_pitch_gives_exact_cube_count():
+    m = sc_fem.voxelize(box_mesh([1.0, 0.5, 0.25]), pitch=0.125, fill="solid")
+    assert tuple(m.dims) == (8, 4, 2) and m.n_cubes == 64
+    m2 = sc_fem.voxelize(box_mesh([1.0, 0.5, 0.25]), resolution=8, fill="solid")
+    assert m2.n_cubes == 64 and m2.pitch == pytest.approx(0.125)
+    shell = sc_fem.voxelize(box_mesh([1.0, 0.5, 0.25]), resolution=8)
+    assert shell.n_cubes == 64          # 2 cubes thick: every cube touches the surface
+
+
+def test_grid_for_and_scale():
+    origin, pitch, dims = grid_for(np.array([[0, 0, 0], [2.0, 1.0, 0.0]]), resolution=4)
+    assert pitch == 0.5 and tuple(dims) == (4, 2, 1)
+    m = sc_fem.voxelize(box_mesh([100.0, 10.0, 10.0]), resolution=10, scale=0.001, fill="solid", density=1000.0)
+    assert m.h == pytest.approx(0.01)
+    assert m.total_mass == pytest.approx(1000.0 * 0.1 * 0.01 * 0.01)   # 100 x 10 x 10 mm of water
+
+
+def _hash_oracle(points, masses, values, origin, pitch, dims):
+    acc = {}
+    for p, mm, *vals in zip(points, masses, *values.values()):
+        key = tuple(min(max(int(np.floor((p[d] - origin[d]) / pitch)), 0), dims[d] - 1) for d in range(3))
+        a = acc.setdefault(key, [0.0] + [0.0] * len(values))
+        a[0] += mm
+        for i, v in enumerate(vals):
+            a[1 + i] += mm * v
+    keys = sorted(acc)
+    return (np.array(keys), np.array([acc[k][0] for k in keys]),
+            {name: np.array([acc[k][1 + i] / acc[k][0] for k in keys]) for i, name in enumerate(values)})
+
+
+def test_hash_samples_matches_loop_oracle(rng):
+    pts = rng.uniform(-1, 1, size=(3000, 3))
+    pts[:5] = 1.0                                                   # on the upper faces
+    masses = rng.uniform(0.1, 2.0, 3000)
+    vals = {"E": rng.uniform(1e6, 1e9, 3000), "nu": rng.uniform(0.0, 0.45, 3000)}
+    origin, pitch, dims = grid_for(np.array([[-1.0] * 3, [1.0] * 3]), resolution=7)
+    cells, mass, avg = hash_samples(pts, masses, vals, origin, pitch, dims)
+    c2, m2, a2 = _hash_oracle(pts, masses, vals, origin, pitch, dims)
+    np.testing.assert_array_equal(cells, c2)
+    np.testing.assert_allclose(mass, m2, rtol=1e-12)
+    for k in vals:
+        np.testing.assert_allclose(avg[k], a2[k], rtol=1e-12)
+    assert np.all(cells < dims)
+
+
+# ---------------------------------------------------------------- mass and material
+def test_total_mass_is_conserved_and_split_by_area():
+    mesh = sc_fem.load_mesh("builtin:chair")
+    m = sc_fem.voxelize(mesh, resolution=24, mass=3.5)
+    assert m.total_mass == pytest.approx(3.5, rel=1e-12)
+    # surface samples: the model's mass is rho * area * thickness (default thickness = h)
+    m2 = sc_fem.voxelize(mesh, resolution=24, density=900.0, keep="all")
+    assert m2.total_mass == pytest.approx(900.0 * mesh.area * m2.h, rel=1e-9)
+
+
+def test_solid_mass_is_density_times_volume():
+    m = sc_fem.voxelize(box_mesh([1.0, 1.0, 1.0]), resolution=5, fill="solid", density=2.0)
+    assert m.n_cubes == 125
+    np.testing.assert_allclose(m.mass, 2.0 * 0.2**3)
+
+
+def test_per_face_and_callable_materials_are_mass_averaged():
+    a = box_mesh([1.0, 1.0, 1.0])
+    b = box_mesh([1.0, 1.0, 1.0], corner=(1.0, 0.0, 0.0))
+    mesh = sc_fem.load_mesh((np.vstack([a.vertices, b.vertices]), np.vstack([a.faces, b.faces + 8])))
+    E = np.r_[np.full(12, 1e6), np.full(12, 3e6)]
+    m = sc_fem.voxelize(mesh, pitch=0.5, youngs=E, poisson=0.3, density=1000.0)
+    left = m.cell_centers[:, 0] < 1.0       # samples on the shared plane x = 1 hash to the upper cell
+    right = m.cell_centers[:, 0] > 1.5
+    np.testing.assert_allclose(m.youngs[left], 1e6)
+    np.testing.assert_allclose(m.youngs[right], 3e6)
+    mid = ~left & ~right            # the cubes just above x = 1 hold samples of both boxes
+    assert np.all((m.youngs[mid] > 1e6) & (m.youngs[mid] < 3e6))
+    # callable of position, solid fill: interior volume samples see the field too
+    m2 = sc_fem.voxelize(a, pitch=0.25, fill="solid", youngs=lambda p: 1e6 * (1 + p[:, 2]))
+    np.testing.assert_allclose(m2.youngs, 1e6 * (1 + m2.cell_centers[:, 2]), rtol=1e-12)
+
+
+@pytest.mark.parametrize("kw, match", [
+    ({"youngs": -1.0}, "Young"), ({"youngs": 0.0}, "Young"), ({"poisson": 0.5}, "Poisson"),
+    ({"poisson": -1.0}, "Poisson"), ({"poisson": np.nan}, "Poisson"), ({"density": 0.0}, "density"),
+    ({"youngs": np.ones(5)}, "per-face"),
+])
+def test_bad_material(kw, match):
+    with pytest.raises(ScFemError, match=match):
+        sc_fem.voxelize(box_mesh([1, 1, 1]), resolution=4, **kw)
+
+
+# ---------------------------------------------------------------- fill and components
+def test_solid_fill_of_closed_and_leaky_shells():
+    closed = sc_fem.voxelize(box_mesh([1, 1, 1]), resolution=10, fill="solid")
+    assert closed.n_cubes == 1000
+    shell = sc_fem.voxelize(box_mesh([1, 1, 1]), resolution=10)
+    assert shell.n_cubes == 1000 - 8**3
+    open_box = box_mesh([1, 1, 1])
+    open_box.update_faces(np.abs(open_box.face_normals[:, 2] - 1) > 1e-9)   # remove the lid: a big hole
+    leaky = sc_fem.voxelize(open_box, resolution=10, fill="solid")
+    assert leaky.n_cubes < 1000          # documented: the flood fill leaks through holes > 1 pitch
+
+
+def test_components_keep_and_connectivity():
+    a = box_mesh([0.9, 0.9, 0.9])                      # cells 0..3 along each axis
+    b = box_mesh([0.4, 0.4, 0.4], corner=(3, 0, 0))     # cells 12..13 along x, 0..1 along y, z
+    mesh = trimesh.util.concatenate([a, b])
+    allm = sc_fem.voxelize(mesh, pitch=0.25, fill="solid", keep="all")
+    assert allm.n_components == 2 and list(allm.component_sizes) == [64, 8]
+    big = sc_fem.voxelize(mesh, pitch=0.25, fill="solid")
+    assert big.n_cubes == 64 and big.info["components_found"] == 2 and big.info["dropped_cubes"] == 8
+    # two cubes touching along an edge only: separate with face connectivity, joined with edge
+    cells = np.array([[0, 0, 0], [1, 1, 0]])
+    m1 = sc_fem.CubeModel.from_cells(cells, origin=[0, 0, 0], pitch=1.0, mass=1, youngs=1, poisson=0.3, density=1)
+    m2 = sc_fem.CubeModel.from_cells(cells, origin=[0, 0, 0], pitch=1.0, mass=1, youngs=1, poisson=0.3,
+                                     density=1, connectivity="edge")
+    assert m1.n_components == 2 and m2.n_components == 1
+
+
+def test_hexes_follow_skfem_corner_order():
+    m = sc_fem.CubeModel.box((3, 2, 2), 0.5)
+    corners = m.nodes[m.hexes] - m.nodes[m.hexes[:, :1]]
+    np.testing.assert_allclose(corners, 0.5 * sc_fem.lattice.HEX_CORNERS[None].repeat(m.n_cubes, 0))
+    sk = m.to_skfem()
+    assert sk.t.shape == (8, 12) and np.allclose(sk.p.T, m.nodes_m)
+
+
+# ---------------------------------------------------------------- coverage guarantee
+def _dense_surface_points(mesh, n, seed):
+    pts, _ = trimesh.sample.sample_surface(mesh, n, seed=seed)
+    return pts
+
+
+@pytest.mark.parametrize("name, res", [("chair", 24), ("bridge", 40), ("rope", 32), ("beam", 16)])
+def test_default_sampling_covers_every_cube_the_surface_enters(name, res):
+    mesh = sc_fem.load_mesh(f"builtin:{name}")
+    m = sc_fem.voxelize(mesh, resolution=res, keep="all")
+    spacing = m.info["spacing"]
+    pts = _dense_surface_points(mesh, 200_000, seed=1)
+    rel = (pts - m.origin) / m.pitch
+    ijk = np.clip(np.floor(rel).astype(int), 0, m.dims - 1)
+    depth = np.min(np.minimum(rel - ijk, ijk + 1 - rel), axis=1) * m.pitch
+    deep = depth >= spacing
+    assert deep.sum() > 1000
+    have = set(map(tuple, m.cells))
+    missing = [tuple(c) for c in ijk[deep] if tuple(c) not in have]   # loop oracle over test points
+    assert missing == []
+
+
+@pytest.mark.parametrize("name", ["chair", "bridge", "rope"])
+def test_sample_cubes_are_a_subset_of_exact_cubes(name):
+    s = sc_fem.voxelize(f"builtin:{name}", resolution=32, keep="all")
+    e = sc_fem.voxelize(f"builtin:{name}", resolution=32, keep="all", method="exact")
+    ss, es = set(map(tuple, s.cells)), set(map(tuple, e.cells))
+    assert ss <= es
+    # exact adds only cubes the surface grazes (no deeper than the sample spacing)
+    assert len(es - ss) == e.info["exact_only_cubes"]
+    assert len(es - ss) <= 0.05 * len(es)
+
+
+def test_random_sampling_option_is_the_papers_scheme():
+    m = sc_fem.voxelize("builtin:chair", resolution=16, n_samples=50_000, mass=2.0)
+    assert m.info["sampler"] == "random" and m.info["n_samples"] == 50_000
+    assert m.total_mass == pytest.approx(2.0)
+
+
+def test_point_cloud_is_voxelized():
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(0, 1, size=(5000, 3))
+    m = sc_fem.voxelize(pts, resolution=4)
+    assert m.n_cubes == 64 and m.total_mass > 0
+
+
+# ---------------------------------------------------------------- guards and bad input
+def test_memory_guard_refuses_before_allocating():
+    with pytest.raises(ResolutionError, match=r"try resolution <= \d+"):
+        sc_fem.voxelize("builtin:beam", resolution=5000, max_memory=200e6)
+
+
+@pytest.mark.parametrize("kw, exc", [
+    ({"resolution": 0}, InputError), ({"resolution": -3}, InputError), ({"resolution": 2.5}, InputError),
+    ({"resolution": 10**6}, ResolutionError), ({"pitch": 0.0}, InputError), ({"pitch": -1}, InputError),
+    ({"pitch": 1e-9}, ResolutionError), ({"resolution": 4, "pitch": 0.1}, InputError),
+    ({"fill": "volume"}, InputError), ({"method": "magic"}, InputError), ({"keep": "some"}, InputError),
+    ({"scale": 0}, InputError), ({"mass": -1.0}, InputError), ({"connectivity": "any"}, InputError),
+])
+def test_bad_arguments(kw, exc):
+    with pytest.raises(exc):
+        sc_fem.voxelize("builtin:beam", **kw)
+
+
+def test_all_degenerate_faces_is_a_clear_error():
+    v = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 1, 0]], float)
+    with pytest.raises(ScFemError, match="zero area"):
+        sc_fem.voxelize((v, np.array([[0, 1, 2]])), resolution=4)
+    with pytest.raises(ScFemError, match="needs faces"):
+        sc_fem.voxelize(v, resolution=4, method="exact")
+
+
+def test_zero_mass_material_is_rejected():
+    with pytest.raises(MaterialError):
+        sc_fem.voxelize("builtin:beam", resolution=4, density=lambda p: np.zeros(len(p)))
