@@ -178,13 +178,27 @@ def test_remove_rigid_recovers_known_rotation_and_translation():
     rots = Rotation.random(4, random_state=2)
     shifts = rng.normal(size=(4, 3))
     curves = np.stack([rots[i].apply(shape) + shifts[i] for i in range(4)])[:, None]
-    al = R.remove_rigid(curves)
+    al = R.remove_rigid(curves, reg=0.0)
+    al_reg = R.remove_rigid(curves)                                         # default tie-break
+    np.testing.assert_allclose(al_reg.rotations, al.rotations, atol=1e-5)
     for i in range(4):
         expect = (rots[i] * rots[0].inv()).inv().as_matrix()               # R_i maps frame i to 0
         np.testing.assert_allclose(al.rotations[i, 0], expect, atol=1e-10)
         np.testing.assert_allclose(al.aligned[i, 0], curves[0, 0], atol=1e-10)
         np.testing.assert_allclose(al.anchors[i, 0], curves[i, 0, 0], atol=1e-12)
     assert np.allclose(np.linalg.det(al.rotations), 1.0)
+
+
+def test_kabsch_straight_reference_gives_minimal_rotation():
+    """A straight frame-0 curve leaves the spin about its axis undetermined: the tie-break must
+    return the smallest rotation (the swing only), smoothly varying between frames."""
+    u = np.linspace(0, 1, 40)
+    straight = np.stack([u, 0 * u, 0 * u], axis=-1)
+    angles = np.linspace(0, 0.8, 5)
+    curves = np.stack([Rotation.from_rotvec([0, 0, a]).apply(straight) for a in angles])[:, None]
+    al = R.remove_rigid(curves)
+    rv = Rotation.from_matrix(al.rotations[:, 0]).as_rotvec()
+    np.testing.assert_allclose(rv, np.outer(-angles, [0, 0, 1]), atol=1e-5)
 
 
 def test_kabsch_reflection_guard():
@@ -293,7 +307,8 @@ def test_curve_mesh_map_and_mesh_vertices():
 
     class Shift:                                                            # pure translation
         def evaluate(self, tt):
-            return curves[0] + np.multiply.outer(np.atleast_1d(tt), [1.0, 2.0, 3.0])[:, None, None, :] if np.ndim(tt) else curves[0] + [1.0, 2.0, 3.0] * tt
+            out = curves[0] + np.multiply.outer(np.atleast_1d(tt), [1.0, 2.0, 3.0])[:, None, None, :]
+            return out if np.ndim(tt) else out[0]
     out = R.mesh_vertices(Shift(), np.array([0.0, 0.5]), w, curves[0], verts)
     np.testing.assert_allclose(out[1], verts + [0.5, 1.0, 1.5], atol=1e-12)
     assert R.mesh_vertices(Shift(), 0.5, w, curves[0], verts).shape == verts.shape

@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .elements import DEFAULT_ELEMENT, check_element, reference_mass, stiffness_values
+from .elements import CENTRE_RULE, DEFAULT_ELEMENT, check_element, reference_mass, stiffness_values
 from .errors import InputError
 from .lattice import HEX_CORNERS, CubeModel
 
@@ -271,7 +271,7 @@ def _assemble_skfem(model: CubeModel, element: str, lumped: bool, free: np.ndarr
         def deviatoric(u, v, w):
             return mu * (2.0 * _ddot_sym(u.grad, v.grad) - (2.0 / 3.0) * trace(u.grad) * trace(v.grad))
 
-        one = Basis(mesh, ElementVector(ElementHex1()), intorder=1)
+        one = Basis(mesh, ElementVector(ElementHex1()), quadrature=CENTRE_RULE)
         K = asm(volumetric, one) + asm(deviatoric, basis)
     rho = (model.mass / model.h**3)[:, None]
 

@@ -56,6 +56,11 @@ LINEAR_ELEMENTS = frozenset({"q1", "q1sri"})
 """Elements whose matrix is linear in (lambda, mu): ``K_e = h (lambda K_lambda + mu K_mu)``."""
 
 
+CENTRE_RULE = (np.full((3, 1), 0.5), np.ones(1))
+"""One-point rule at the centre of scikit-fem's reference hexahedron [0, 1]^3 (``quadrature=``);
+scikit-fem's ``intorder=1`` on hexahedra still uses 2x2x2 points."""
+
+
 def check_element(element: str) -> str:
     """Validate an element name and return it (lower case)."""
     if not isinstance(element, str) or element.lower() not in ELEMENTS:
@@ -71,7 +76,7 @@ def _unit_cube_bases():
 
     mesh = MeshHex(np.ascontiguousarray(HEX_CORNERS.T, dtype=float), np.arange(8, dtype=np.int64)[:, None])
     full = Basis(mesh, ElementVector(ElementHex1()), intorder=3)   # 2x2x2 Gauss, exact on cubes
-    one = Basis(mesh, ElementVector(ElementHex1()), intorder=1)    # 1 point at the centre
+    one = Basis(mesh, ElementVector(ElementHex1()), quadrature=CENTRE_RULE)   # 1 point at the centre
     if not np.array_equal(full.element_dofs[:, 0], np.arange(24)):
         raise RuntimeError("unexpected scikit-fem ElementVector DOF order")  # pragma: no cover
     return full, one

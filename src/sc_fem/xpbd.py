@@ -63,7 +63,7 @@ from ._validate import as_float_array, as_points, positive_int, positive_scalar
 from .errors import BoundaryConditionError, InputError, InstabilityError
 from .lattice import HEX_CORNERS, CubeModel
 
-CONSTRAINTS = ("neohookean", "corotated", "distance")
+CONSTRAINTS = ("neohookean", "distance")
 
 _SIGNS = 2.0 * HEX_CORNERS - 1.0                      # (8, 3) corner signs s_a
 DN_CENTRE = _SIGNS / 4.0                               # grad N_a at the centre of a unit cube
@@ -177,36 +177,6 @@ def neohookean_terms(X: np.ndarray, h: float):
     return CD, gD, J, gH
 
 
-def _polar_rotation(F: np.ndarray) -> np.ndarray:
-    """Rotation factor R of the polar decomposition F = R S (det R = +1), batched (n, 3, 3)."""
-    U, _, Vt = np.linalg.svd(F)
-    R = np.matmul(U, Vt)
-    flip = np.linalg.det(R) < 0
-    if np.any(flip):
-        U[flip, :, 2] *= -1.0
-        R[flip] = np.matmul(U[flip], Vt[flip])
-    return R
-
-
-def corotated_terms(X: np.ndarray, h: float):
-    """Co-rotational pair for a batch of cubes: ``C_D = sqrt(mean_cube |F - R|^2)`` (R = polar
-    rotation of the centre F; exact full integration over the trilinear cube, R held fixed in the
-    gradient as in ARAP) and ``J = det F`` at the centre. Same returns as :func:`neohookean_terms`."""
-    n = X.shape[0]
-    LX = np.matmul(L_REF, X)
-    F = np.matmul(X.transpose(0, 2, 1), DN_CENTRE) * (1.0 / h)
-    R = _polar_rotation(F)
-    E = (np.einsum("ij,ij->i", X.reshape(n, 24), LX.reshape(n, 24)) / (h * h)
-         - 2.0 * np.einsum("ij,ij->i", R.reshape(n, 9), F.reshape(n, 9)) + 3.0)
-    CD = np.sqrt(np.maximum(E, 0.0))
-    gE = LX * (1.0 / (h * h)) - np.matmul(DN_CENTRE, R.transpose(0, 2, 1)) * (1.0 / h)   # grad E / 2
-    gD = gE * (1.0 / np.maximum(CD, 1e-12))[:, None, None]
-    cof = F[:, _P1[:, None], _P1] * F[:, _P2[:, None], _P2] - F[:, _P1[:, None], _P2] * F[:, _P2[:, None], _P1]
-    J = np.einsum("ij,ij->i", F[:, 0, :], cof[:, 0, :])
-    gH = np.matmul(DN_CENTRE, cof.transpose(0, 2, 1)) * (1.0 / h)
-    return CD, gD, J, gH
-
-
 def _as_fixed(fixed, n_nodes: int) -> np.ndarray:
     """Boolean mask (m,) of fixed nodes from indices or a mask."""
     if fixed is None:
@@ -306,11 +276,6 @@ class XPBDSolver:
             self._alphaD = 1.0 / (mu * V)
             self._alphaH = 1.0 / (lam_nh * V)
             self._terms = neohookean_terms
-        elif self.constraints == "corotated":
-            self._gamma = np.ones(md.n_cubes)
-            self._alphaD = 1.0 / (2.0 * mu * V)
-            self._alphaH = 1.0 / (lam * V)
-            self._terms = corotated_terms
         if self.constraints != "distance":
             self._lamD = np.zeros(md.n_cubes)
             self._lamH = np.zeros(md.n_cubes)
@@ -461,8 +426,9 @@ class XPBDSolver:
             If the positions become non-finite.
         """
         ds = self.dt / self.substeps
-        for _ in range(self.substeps):
-            self.substep(ds)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):   # checked just below
+            for _ in range(self.substeps):
+                self.substep(ds)
         self.time += self.dt
         self.n_steps += 1
         if not np.all(np.isfinite(self._x)):
@@ -518,8 +484,7 @@ class XPBDSolver:
         c = self.constraint_values(positions)
         if self.constraints != "distance":
             rest_H = (1.0 - self._gamma) ** 2
-            rest_D = 3.0 if self.constraints == "neohookean" else 0.0
-            return float(np.sum((c["C_D"] ** 2 - rest_D) / (2 * self._alphaD)
+            return float(np.sum((c["C_D"] ** 2 - 3.0) / (2 * self._alphaD)
                                 + (c["C_H"] ** 2 - rest_H) / (2 * self._alphaH)))
         return float(np.sum(c["C"] ** 2 / (2 * self._alpha)))
 

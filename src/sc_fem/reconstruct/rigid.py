@@ -50,18 +50,26 @@ class RigidAlignment:
         return self.anchors[0]
 
 
-def kabsch(q: np.ndarray, p: np.ndarray) -> np.ndarray:
+def kabsch(q: np.ndarray, p: np.ndarray, reg: float = 1e-6) -> np.ndarray:
     """Batched best rotation ``R`` minimising ``sum_k |R q_k - p_k|^2`` (closed form of Eq. 23).
 
     Parameters
     ----------
     q, p : ndarray, shape (..., P, 3)
+    reg : float
+        Tie-break towards the identity: maximises ``tr(R H) + lam tr(R)`` with
+        ``lam = reg * sum_k |q_k| |p_k|``. For (nearly) straight curves the spin about the curve's
+        own axis is undetermined (a rope at rest is straight); without this the SVD returns an
+        arbitrary spin that differs from frame to frame and ruins the interpolation between
+        frames. The bias on well-determined rotations is of order ``reg``.
 
     Returns
     -------
     ndarray, shape (..., 3, 3), proper rotations (``det = +1``).
     """
     h = np.einsum("...ki,...kj->...ij", q, p)
+    lam = reg * np.einsum("...k,...k->...", np.linalg.norm(q, axis=-1), np.linalg.norm(p, axis=-1))
+    h = h + lam[..., None, None] * np.eye(3)
     uu, _, vt = np.linalg.svd(h)
     d = np.sign(np.linalg.det(np.swapaxes(vt, -1, -2) @ np.swapaxes(uu, -1, -2)))
     d = np.where(d == 0, 1.0, d)
@@ -70,13 +78,15 @@ def kabsch(q: np.ndarray, p: np.ndarray) -> np.ndarray:
     return np.swapaxes(vt, -1, -2) @ (fix[..., :, None] * np.swapaxes(uu, -1, -2))
 
 
-def remove_rigid(curves) -> RigidAlignment:
+def remove_rigid(curves, reg: float = 1e-6) -> RigidAlignment:
     """Remove per-curve rigid motion relative to frame 0 (paper Eqs. 18-23).
 
     Parameters
     ----------
     curves : array_like, shape (F, C, P, 3)
         Model units.
+    reg : float
+        Tie-break towards the identity for straight curves (see :func:`kabsch`); 0 = plain Kabsch.
     """
     x = np.asarray(curves, dtype=float)
     if x.ndim != 4 or x.shape[-1] != 3:
@@ -84,7 +94,7 @@ def remove_rigid(curves) -> RigidAlignment:
     anchors = x[:, :, 0, :]
     q = x - anchors[:, :, None, :]
     p = q[0]
-    rot = kabsch(q, np.broadcast_to(p, q.shape))
+    rot = kabsch(q, np.broadcast_to(p, q.shape), reg)
     rot[0] = np.eye(3)
     aligned = anchors[0][None, :, None, :] + np.einsum("fcij,fcpj->fcpi", rot, q)
     return RigidAlignment(aligned=aligned, rotations=rot, anchors=anchors)

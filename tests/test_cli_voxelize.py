@@ -1,0 +1,62 @@
+"""``sc-fem voxelize`` and ``sc-fem demo`` run in-process through ``main(argv)``."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sc_fem._cli.main import build_parser, main
+from sc_fem.modelfile import load_model
+
+
+def test_help_lists_every_option(capsys):
+    with pytest.raises(SystemExit):
+        main(["voxelize", "--help"])
+    out = capsys.readouterr().out
+    for opt in ("--resolution", "--pitch", "--scale", "--fill", "--method", "--keep", "--youngs",
+                "--poisson", "--density", "--mass", "--output"):
+        assert opt in out
+
+
+def test_no_command_prints_help(capsys):
+    assert main([]) == 2
+    assert "COMMAND" in capsys.readouterr().out
+
+
+def test_npz_round_trip(tmp_path, capsys):
+    out = tmp_path / "chair.npz"
+    assert main(["voxelize", "builtin:chair", "-r", "12", "--fill", "solid", "-o", str(out)]) == 0
+    m = load_model(out)
+    assert m.n_cubes > 0 and m.info["fill"] == "solid"
+    assert "cubes / nodes / DOFs" in capsys.readouterr().out
+
+
+def test_vtu_and_png(tmp_path):
+    import meshio
+
+    assert main(["voxelize", "builtin:bridge", "-r", "16", "--method", "exact", "-o", str(tmp_path / "b.vtu"), "-q"]) == 0
+    m = meshio.read(tmp_path / "b.vtu")
+    assert m.cells[0].type == "hexahedron" and "youngs_Pa" in m.cell_data
+    assert main(["voxelize", "builtin:beam", "-r", "8", "-o", str(tmp_path / "b.png"), "-q"]) == 0
+    assert (tmp_path / "b.png").stat().st_size > 1000
+
+
+@pytest.mark.parametrize("argv, msg", [
+    (["voxelize", "missing.obj", "-o", "x.npz"], "not found"),
+    (["voxelize", "builtin:beam", "-r", "0", "-o", "x.npz"], "resolution"),
+    (["voxelize", "builtin:beam", "--youngs", "-5", "-o", "x.npz"], "Young"),
+    (["voxelize", "builtin:beam", "-o", "x.txt"], "unsupported output"),
+])
+def test_errors_are_messages_not_tracebacks(tmp_path, capsys, monkeypatch, argv, msg):
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert msg in err and "Traceback" not in err
+    assert not list(tmp_path.glob("x.*"))
+
+
+def test_every_command_has_help():
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command")
+    for name, p in sub.choices.items():
+        assert p.description or p.format_help(), name
