@@ -74,3 +74,44 @@ def stage(name: str, timings: dict, quiet: bool = False):
     timings[name] = time.perf_counter() - t0
     if not quiet:
         print(f"[{name}] {timings[name]:.2f} s", file=sys.stderr, flush=True)
+
+
+def add_fix_args(p: argparse.ArgumentParser) -> None:
+    """``--fix SPEC`` (repeatable) and ``--fix-vertices FILE``: the same on every command."""
+    p.add_argument("--fix", action="append", default=[], metavar="SPEC",
+                   help='fix lattice nodes: "x<0.01", "z<min+0.02", "y>max-0.1", "x>0.2 & x<0.4" '
+                        '(axis, < or >, a value in model units, optionally relative to the bounding box; '
+                        'repeatable, the union is fixed); "default" = the built-in model\'s natural supports')
+    p.add_argument("--fix-vertices", metavar="FILE", default=None,
+                   help="text file of source-mesh vertex indices (one a line); their cubes' nodes are fixed")
+
+
+def fix_specs_from_args(args, mesh) -> list[str]:
+    """The ``--fix`` specs with ``default`` expanded to the built-in model's supports."""
+    from .. import models
+    from ..errors import BoundaryConditionError
+
+    specs: list[str] = []
+    for s in args.fix:
+        if s.strip().lower() == "default":
+            src = str(mesh.metadata.get("source", ""))
+            if not src.startswith("builtin:"):
+                raise BoundaryConditionError('--fix default is only defined for builtin:NAME models')
+            specs += list(models.fix_specs(src))
+        else:
+            specs.append(s)
+    return specs
+
+
+def fixed_nodes_from_args(args, model, mesh):
+    """Node indices fixed by ``--fix`` / ``--fix-vertices`` (empty array when neither is given)."""
+    import numpy as np
+
+    from ..boundary import fixed_nodes, read_vertex_file
+
+    specs = fix_specs_from_args(args, mesh)
+    verts = read_vertex_file(args.fix_vertices) if args.fix_vertices else None
+    if not specs and verts is None:
+        return np.zeros(0, dtype=np.int64)
+    return fixed_nodes(model, fix=specs, vertices=verts,
+                       mesh_vertices=None if verts is None else mesh.vertices)

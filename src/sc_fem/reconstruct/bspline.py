@@ -61,9 +61,9 @@ class BSplineModel:
     def frame_points(self) -> np.ndarray:
         """Spline points at the fitted frames, shape (F, C, P, 3)."""
         f, c, p = self.u.shape
-        b = BSpline.design_matrix(self.u.ravel(), self.knots, DEGREE).toarray()
-        b = b.reshape(f, c, p, -1)
-        return np.einsum("fcpk,fckw->fcpw", b, self.control_points)
+        cols, vals = _local_basis(self.u, self.knots)                  # (F, C, P, 4) each
+        ctrl = self.control_points[np.arange(f)[:, None, None, None], np.arange(c)[None, :, None, None], cols]
+        return np.einsum("fcpk,fcpkw->fcpw", vals, ctrl)
 
     def evaluate(self, t) -> np.ndarray:
         """Points at time(s) ``t`` (caller's units), clamped to the fitted time range.
@@ -79,6 +79,14 @@ class BSplineModel:
         lam = ((tt - self.fit_times[i]) / (self.fit_times[i + 1] - self.fit_times[i]))[:, None, None, None]
         out = (1.0 - lam) * pts[i] + lam * pts[i + 1]
         return out[0] if t_arr.ndim == 0 else out
+
+
+def _local_basis(u: np.ndarray, knots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Column indices and values of the 4 non-zero cubic B-splines at every ``u``: (..., 4) each."""
+    m = BSpline.design_matrix(u.ravel(), knots, DEGREE)                # CSR, 4 non-zeros per row
+    m.sort_indices()
+    shape = u.shape + (DEGREE + 1,)
+    return m.indices.reshape(shape), m.data.reshape(shape)
 
 
 def bspline_baseline(curves, times, fit_frames, n_control: int = 50, u=None) -> BSplineModel:
@@ -117,7 +125,15 @@ def bspline_baseline(curves, times, fit_frames, n_control: int = 50, u=None) -> 
             raise InputError(f"u must have shape ({p},) or ({c}, {p}) with values in [0, 1], got shape {u.shape}")
         u = np.broadcast_to(u, (f, c, p)).copy()
     knots = clamped_knots(n_control)
-    b = BSpline.design_matrix(u.ravel(), knots, DEGREE).toarray().reshape(f, c, p, n_control)
-    bp = np.linalg.pinv(b)                                         # (F, C, n_control, P)
-    ctrl = np.einsum("fckp,fcpw->fckw", bp, xf)
+    cols, vals = _local_basis(u, knots)
+    # normal equations B^T B c = B^T x, assembled from the 4 non-zeros per row (B-spline
+    # collocation with dense, ordered data is well conditioned; checked against make_lsq_spline)
+    ata = np.zeros((f, c, n_control, n_control))
+    atb = np.zeros((f, c, n_control, 3))
+    fi, ci = np.arange(f)[:, None, None], np.arange(c)[None, :, None]
+    for a in range(DEGREE + 1):                                  # 4 x 4 local pairs
+        np.add.at(atb, (fi, ci, cols[..., a]), vals[..., a, None] * xf)
+        for b_ in range(DEGREE + 1):
+            np.add.at(ata, (fi, ci, cols[..., a], cols[..., b_]), vals[..., a] * vals[..., b_])
+    ctrl = np.linalg.solve(ata, atb)
     return BSplineModel(control_points=ctrl, knots=knots, u=u, fit_times=t[idx])

@@ -30,7 +30,7 @@ from scipy.optimize import minimize
 
 from .._validate import as_float_array, positive_scalar
 from ..errors import InputError
-from .basis import N_SPACE, N_TIME, paper_scale, space_basis, time_basis
+from .basis import paper_scale, space_basis, time_basis
 from .param import PARAMETRIZATIONS, parametrize
 from .rigid import RIGID_INTERPOLATIONS, RigidMotion
 from .rigid import remove_rigid as _remove_rigid
@@ -152,51 +152,66 @@ def _svd(a: np.ndarray):
     return q, sv, vt, n
 
 
-def _project(x: np.ndarray, tb: np.ndarray, ub: np.ndarray, rcond: float):
-    """Truncated projection of data ``x`` (C, 3, F, P) onto span(T (x) U).
+def _space_side(x: np.ndarray, u: np.ndarray, r: float):
+    """SVD of the space basis and the data in its orthonormal coordinates (reused across alpha).
+
+    Returns ``(qu, su, vtu, un)``, ``xu`` (C, 3, F, 8) and ``out_u`` (F,): the squared data norm
+    per frame outside span(U), which no coefficient can fit.
+    """
+    qu, su, vtu, un = _svd(space_basis(u, r))
+    xu = x @ qu[:, None]                                                 # (C, 3, F, 8)
+    out = x - xu @ np.swapaxes(qu, -1, -2)[:, None]
+    return (qu, su, vtu, un), xu, np.einsum("cwfp,cwfp->f", out, out)
+
+
+def _project(xu: np.ndarray, su: np.ndarray, tb: np.ndarray, rcond: float):
+    """Truncated projection onto span(T (x) U) of data already in U's orthonormal coordinates.
 
     The Kronecker design matrix has singular values ``st_a * su_b``; pairs below ``rcond`` times
     the largest are dropped *jointly* (truncating T and U separately would leave a product
     condition number up to cond(T) * cond(U) and lose all precision in the coefficients).
-    Returns ``z`` (C, 3, 4, 8) coordinates in the orthonormal bases and the SVD factors.
+    Returns ``z`` (C, 3, 4, 8) coordinates in the orthonormal bases, the T factors and the mask.
     """
     qt, st, vtt, tn = _svd(tb)
-    qu, su, vtu, un = _svd(ub)
     prod = st[None, :, None] * su[:, None, :]                           # (C, 4, 8)
     mask = prod > rcond * prod.max(axis=(1, 2), keepdims=True)
-    z = np.einsum("fa,cwfp,cpb->cwab", qt, x, qu) * mask[:, None]
-    return z, (qt, st, vtt, tn), (qu, su, vtu, un), mask
+    z = (qt.T @ xu) * mask[:, None]
+    return z, (qt, st, vtt, tn), mask
 
 
 def _solve(x: np.ndarray, s: np.ndarray, u: np.ndarray, r: float, alpha: float, rcond: float) -> np.ndarray:
     """Coefficients (C, 3, 4, 8) of the separable least squares for data ``x`` (C, 3, F, P)."""
-    z, (qt, st, vtt, tn), (qu, su, vtu, un), mask = _project(x, time_basis(s, alpha), space_basis(u, r), rcond)
+    (qu, su, vtu, un), xu, _ = _space_side(x, u, r)
+    z, (qt, st, vtt, tn), mask = _project(xu, su, time_basis(s, alpha), rcond)
     inv = np.where(mask, 1.0 / np.where(mask, st[None, :, None] * su[:, None, :], 1.0), 0.0)
-    coef = np.einsum("ai,cwab,cbj->cwij", vtt, z * inv[:, None], vtu)
+    coef = vtt.T @ (z * inv[:, None]) @ vtu[:, None]
     return coef / (tn[None, None, :, None] * un[:, None, None, :])
 
 
-def _objective(x: np.ndarray, s: np.ndarray, u: np.ndarray, r: float, alpha: float, rcond: float,
-               criterion: str) -> float:
-    """Sum of squared residuals (``"residual"``) or of leave-one-interior-frame-out errors."""
-    tb, ub = time_basis(s, alpha), space_basis(u, r)
+def _objective(space, s: np.ndarray, alpha: float, rcond: float, criterion: str) -> float:
+    """Sum of squared residuals (``"residual"``) or of leave-one-interior-frame-out errors,
+    given the space side ``space = _space_side(x, u, r)``."""
+    (qu, su, *_), xu, out_u = space
+    tb = time_basis(s, alpha)
     if criterion == "residual":
-        z, (qt, *_), (qu, *_), _ = _project(x, tb, ub, rcond)
-        return float(np.sum((x - np.einsum("fa,cwab,cpb->cwfp", qt, z, qu)) ** 2))
+        z, (qt, *_), _ = _project(xu, su, tb, rcond)
+        return float(out_u.sum() + np.sum((xu - qt @ z) ** 2))
     total = 0.0
     for j in range(1, len(s) - 1):     # loop over held-out frames (a handful)
         keep = np.arange(len(s)) != j
-        z, (qt, st, vtt, tn), (qu, *_), _ = _project(x[:, :, keep], tb[keep], ub, rcond)
+        z, (qt, st, vtt, tn), _ = _project(xu[:, :, keep], su, tb[keep], rcond)
         g = (vtt @ (tb[j] / tn)) / st                                   # row j in the SVD basis
-        pred = np.einsum("a,cwab,cpb->cwp", g, z, qu)
-        total += float(np.sum((x[:, :, j] - pred) ** 2))
+        total += float(np.sum((xu[:, :, j] - np.einsum("a,cwab->cwb", g, z)) ** 2) + out_u[j])
     return total
 
 
 def _search(x, s, u, r, alpha, bounds_r, bounds_a, grid, rcond, criterion):
     rg = np.array([r]) if r is not None else np.geomspace(*bounds_r, grid[0])
     ag = np.array([alpha]) if alpha is not None else np.geomspace(*bounds_a, grid[1])
-    obj = np.array([[_objective(x, s, u, ri, ai, rcond, criterion) for ai in ag] for ri in rg])
+    obj = np.empty((len(rg), len(ag)))
+    for i, ri in enumerate(rg):                     # grid loops (small); space side once per r
+        space = _space_side(x, u, ri)
+        obj[i] = [_objective(space, s, ai, rcond, criterion) for ai in ag]
     i, j = np.unravel_index(np.argmin(obj), obj.shape)
     free = [k for k, v in enumerate((r, alpha)) if v is None]
     start = np.log([rg[i], ag[j]])
@@ -207,7 +222,8 @@ def _search(x, s, u, r, alpha, bounds_r, bounds_a, grid, rcond, criterion):
     def f(z):   # log of the objective: the optimum may be an exact fit (objective -> 0)
         p = start.copy()
         p[free] = z
-        return np.log(_objective(x, s, u, *np.exp(p), rcond, criterion) + floor)
+        r_, a_ = np.exp(p)
+        return np.log(_objective(_space_side(x, u, r_), s, a_, rcond, criterion) + floor)
 
     f0 = f(start[free])
     res = minimize(f, start[free], method="L-BFGS-B", bounds=[tuple(lims[k]) for k in free],
