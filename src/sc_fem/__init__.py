@@ -28,13 +28,23 @@ _LAZY: dict[str, str] = {
     # FEM core
     "assemble": ".assemble", "Assembler": ".assemble",
     "FixSpec": ".boundary", "parse_fix": ".boundary", "fixed_nodes": ".boundary",
+    "fixed_dofs": ".boundary", "read_vertex_file": ".boundary",
+    "factorize": ".linsolve", "Factorization": ".linsolve",
     "solve_static": ".static", "StaticResult": ".static",
+    "ELEMENTS": ".elements", "DEFAULT_ELEMENT": ".elements",
+    # files
+    "save_model": ".modelfile", "load_model": ".modelfile",
+    "Animation": ".animfile", "save_animation": ".animfile", "load_animation": ".animfile",
+    # XPBD and the cube-rope scene
+    "XPBDSolver": ".xpbd", "XPBDState": ".xpbd", "XPBDEnergy": ".xpbd", "simulate_xpbd": ".xpbd",
+    "rope_scene": ".rope_scene", "RopeScene": ".rope_scene",
 }
 
 _SUBMODULES = ("models", "xpbd", "reconstruct", "render")
 
 # Functions that share their module's name are imported eagerly: otherwise ``import
 # sc_fem.voxelize`` (the submodule) would replace the function attribute with the module.
+from .assemble import assemble  # noqa: E402
 from .embed import embed  # noqa: E402
 from .voxelize import voxelize  # noqa: E402
 

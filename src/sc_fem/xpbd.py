@@ -63,7 +63,7 @@ from ._validate import as_float_array, as_points, positive_int, positive_scalar
 from .errors import BoundaryConditionError, InputError, InstabilityError
 from .lattice import HEX_CORNERS, CubeModel
 
-CONSTRAINTS = ("neohookean", "distance")
+CONSTRAINTS = ("corotational", "neohookean", "distance")
 
 _SIGNS = 2.0 * HEX_CORNERS - 1.0                      # (8, 3) corner signs s_a
 DN_CENTRE = _SIGNS / 4.0                               # grad N_a at the centre of a unit cube
@@ -105,6 +105,76 @@ def _matchings() -> tuple[np.ndarray, np.ndarray]:
 
 MATCHINGS, MATCHING_KIND = _matchings()               # (7, 4, 2), (7,) 1=edge 2=face 3=body
 _P1, _P2 = np.array([1, 2, 0]), np.array([2, 0, 1])    # cyclic index shifts for cofactors
+
+
+def _sqrt_laplacian() -> np.ndarray:
+    e, V = np.linalg.eigh(L_REF)
+    return (V * np.sqrt(np.maximum(e, 0.0))) @ V.T
+
+
+S_REF = _sqrt_laplacian()
+"""Symmetric square root of :data:`L_REF` (8, 8): ``S S = L_REF``, ``S 1 = 0``."""
+
+
+def _cofactor(F: np.ndarray) -> np.ndarray:
+    """Cofactor matrices ``det(F) F^-T`` of a batch (n, 3, 3)."""
+    return (F[:, _P1[:, None], _P1] * F[:, _P2[:, None], _P2]
+            - F[:, _P1[:, None], _P2] * F[:, _P2[:, None], _P1])
+
+
+def polar_rotation(F: np.ndarray, iterations: int = 5) -> np.ndarray:
+    """Rotation ``R`` of the polar decomposition ``F = R U`` of a batch (n, 3, 3).
+
+    Newton's iteration ``X <- (X + X^-T) / 2`` from ``X = F`` (quadratic convergence; 5
+    iterations reach round-off for strains below ~30 %); matrices with ``det F <= 0`` or that
+    did not converge fall back to the SVD (``U diag(1, 1, det(U V^T)) V^T``)."""
+    X = F
+    prev = F
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        for _ in range(iterations):
+            C = _cofactor(X)
+            d = np.einsum("nj,nj->n", X[:, 0], C[:, 0])
+            prev, X = X, 0.5 * (X + C / d[:, None, None])
+        bad = ~(np.einsum("nij,nij->n", X - prev, X - prev) < 1e-20)
+        bad |= ~(np.linalg.det(F) > 0)
+    if np.any(bad):
+        Fb = np.where(np.isfinite(F[bad]), F[bad], 0.0)
+        U, _, Vt = np.linalg.svd(Fb)
+        s = np.sign(np.linalg.det(np.matmul(U, Vt)))
+        U[:, :, 2] *= np.where(s == 0, 1.0, s)[:, None]
+        X = X.copy()
+        X[bad] = np.matmul(U, Vt)
+    return X
+
+
+def corotational_terms(X: np.ndarray, h: float, R: np.ndarray):
+    """Deviatoric (ARAP) constraint vectors of a batch of cubes.
+
+    ``C_D = S (X - X_ref R^T) / h`` with ``S = sqrt(L_REF)``, so that ``|C_D|^2 h^3 =
+    int_cube |grad x - R|^2`` exactly for the trilinear cube (``R`` constant in the cube).
+
+    Parameters
+    ----------
+    X : ndarray, shape (n, 8, 3)
+        Corner positions, metres, :data:`HEX_CORNERS` order.
+    h : float
+        Rest edge, metres.
+    R : ndarray, shape (n, 3, 3)
+        Rotation per cube (normally :func:`polar_rotation` of the centre ``F``).
+
+    Returns
+    -------
+    ndarray, shape (n, 8, 3)
+        ``C_D`` (dimensionless); its gradient w.r.t. corner ``a`` component ``j`` at fixed
+        ``R`` is ``S[:, a] / h`` for component ``j``.
+    """
+    Xr = np.matmul((h * HEX_CORNERS)[None], R.transpose(0, 2, 1))        # (n, 8, 3) = R X_ref
+    return np.matmul(S_REF, X - Xr) * (1.0 / h)
+
+
+def centre_F(X: np.ndarray, h: float) -> np.ndarray:
+    """Deformation gradient at the cube centre (= cube mean), shape (n, 3, 3), from (n, 8, 3)."""
+    return np.matmul(X.transpose(0, 2, 1), DN_CENTRE) * (1.0 / h)
 
 
 @dataclass(frozen=True, eq=False)
@@ -276,8 +346,15 @@ class XPBDSolver:
             self._alphaD = 1.0 / (mu * V)
             self._alphaH = 1.0 / (lam_nh * V)
             self._terms = neohookean_terms
+        if self.constraints == "corotational":
+            self._gamma = np.ones(md.n_cubes)
+            self._alphaD = 1.0 / (2.0 * mu * V)
+            self._alphaH = 1.0 / (lam * V)
+            self._R = np.broadcast_to(np.eye(3), (md.n_cubes, 3, 3)).copy()
+            self._Ainv = None
+            self._Ainv_ds = None
         if self.constraints != "distance":
-            self._lamD = np.zeros(md.n_cubes)
+            self._lamD = np.zeros((md.n_cubes, 8, 3) if self.constraints == "corotational" else md.n_cubes)
             self._lamH = np.zeros(md.n_cubes)
             self._groups = [np.flatnonzero(colors == c) for c in range(8) if np.any(colors == c)]
             self._jac = self.relaxation / valence[md.hexes].max(axis=1)
@@ -338,6 +415,50 @@ class XPBDSolver:
         x[hexes] = X + dX
         return None
 
+    def _block_inverse(self, ds: float) -> np.ndarray:
+        """``(S W_c S / h^2 + alpha~_D I)^-1`` per cube (n, 8, 8), cached for the substep ``ds``."""
+        if self._Ainv is None or self._Ainv_ds != ds:
+            Wc = self.w[self.model.hexes]                                               # (n, 8)
+            A = np.einsum("ab,nb,bc->nac", S_REF, Wc, S_REF) / self.h ** 2
+            A += (self._alphaD / ds ** 2)[:, None, None] * np.eye(8)
+            self._Ainv = np.linalg.inv(A)
+            self._Ainv_ds = ds
+        return self._Ainv
+
+    def _update_rotations(self, x: np.ndarray) -> None:
+        self._R = polar_rotation(centre_F(x[self.model.hexes], self.h))
+
+    def _project_corot(self, x: np.ndarray, g: int, aD: np.ndarray, aH: np.ndarray,
+                       scale=None, accumulate: bool = False):
+        """Project the cubes of group ``g``: deviatoric block (exact 24-dof solve at fixed R),
+        then (Gauss-Seidel) the volume constraint ``det F - 1``."""
+        idx, hexes, W = self._gidx[g], self._gnodes[g], self._gw[g]
+        h = self.h
+        X = x[hexes]
+        CD = corotational_terms(X, h, self._R[idx])
+        rhs = -CD - aD[idx][:, None, None] * self._lamD[idx]
+        dl = np.matmul(self._Ainv[idx], rhs)                                            # (n, 8, 3)
+        if scale is not None:
+            dl = dl * scale[idx][:, None, None]
+        self._lamD[idx] += dl
+        dXD = W * np.matmul(S_REF, dl) * (1.0 / h)
+        Y = X if accumulate else X + dXD
+        F = centre_F(Y, h)
+        cof = _cofactor(F)
+        J = np.einsum("ij,ij->i", F[:, 0, :], cof[:, 0, :])
+        gH = np.matmul(DN_CENTRE, cof.transpose(0, 2, 1)) * (1.0 / h)                  # (n, 8, 3)
+        n = len(idx)
+        WgH = W * gH
+        a = aH[idx]
+        dH = (1.0 - J - a * self._lamH[idx]) / (np.einsum("ij,ij->i", WgH.reshape(n, 24), gH.reshape(n, 24)) + a)
+        if scale is not None:
+            dH = dH * scale[idx]
+        self._lamH[idx] += dH
+        if accumulate:
+            return hexes, dXD + WgH * dH[:, None, None]
+        x[hexes] = Y + WgH * dH[:, None, None]
+        return None
+
     def _project_dist(self, x: np.ndarray, g: int, alpha: np.ndarray, scale=None,
                       accumulate: bool = False):
         """Project the (node-disjoint) distance constraints of group ``g``."""
@@ -360,7 +481,10 @@ class XPBDSolver:
 
     def _iteration(self, x: np.ndarray, a_t) -> None:
         """One solver iteration over all constraints (in place on ``x``)."""
-        project = self._project_dist if self.constraints == "distance" else self._project_nh
+        project = {"distance": self._project_dist, "neohookean": self._project_nh,
+                   "corotational": self._project_corot}[self.constraints]
+        if self.constraints == "corotational":
+            self._update_rotations(x)
         if self.gauss_seidel:
             for g in range(len(self._gidx) - 1):
                 project(x, g, *a_t)
@@ -378,7 +502,14 @@ class XPBDSolver:
 
     def _apply_multipliers(self, x: np.ndarray, at: np.ndarray) -> None:
         """Warm start: add ``M^-1 grad C^T lam`` of the stored multipliers, gradients at ``at``."""
-        if self.constraints != "distance":
+        if self.constraints == "corotational":
+            hexes = self.model.hexes
+            F = centre_F(at[hexes], self.h)
+            gH = np.matmul(DN_CENTRE, _cofactor(F).transpose(0, 2, 1)) * (1.0 / self.h)
+            dX = self.w[hexes][..., None] * (np.matmul(S_REF, self._lamD) * (1.0 / self.h)
+                                             + gH * self._lamH[:, None, None])
+            nodes = hexes
+        elif self.constraints != "distance":
             hexes = self.model.hexes
             _, gD, _, gH = self._terms(at[hexes], self.h)
             dX = self.w[hexes][..., None] * (gD * self._lamD[:, None, None] + gH * self._lamH[:, None, None])
@@ -406,6 +537,8 @@ class XPBDSolver:
         x = x_prev + ds * self._v
         x[free] += ds * ds * self.gravity
         a_t = self._scaled_compliance(ds)
+        if self.constraints == "corotational":
+            self._block_inverse(ds)
         if self.warm_start:
             self._apply_multipliers(x, x_prev)
         else:
@@ -471,6 +604,11 @@ class XPBDSolver:
         Returns ``{"C_D": (n,), "C_H": (n,)}`` (neohookean; ``C_H = det F - gamma``) or
         ``{"C": (k,)}`` (distance; ``|x_j - x_i| - L``)."""
         x = self._x if positions is None else as_points(positions, "positions")
+        if self.constraints == "corotational":
+            X = x[self.model.hexes]
+            F = centre_F(X, self.h)
+            CD = corotational_terms(X, self.h, polar_rotation(F))
+            return {"C_D": np.sqrt(np.einsum("nij,nij->n", CD, CD)), "C_H": np.linalg.det(F) - 1.0}
         if self.constraints != "distance":
             CD, _, J, _ = self._terms(x[self.model.hexes], self.h)
             return {"C_D": CD, "C_H": J - self._gamma}
@@ -482,6 +620,8 @@ class XPBDSolver:
         neohookean ``sum V [mu/2 (C_D^2 - 3) + lam_nh/2 (C_H^2 - (mu/lam_nh)^2)]``;
         distance ``sum k/2 C^2``."""
         c = self.constraint_values(positions)
+        if self.constraints == "corotational":
+            return float(np.sum(c["C_D"] ** 2 / (2 * self._alphaD) + c["C_H"] ** 2 / (2 * self._alphaH)))
         if self.constraints != "distance":
             rest_H = (1.0 - self._gamma) ** 2
             return float(np.sum((c["C_D"] ** 2 - 3.0) / (2 * self._alphaD)
