@@ -1,76 +1,173 @@
-"""XPBD on the 4 m bar (E = 50 MPa, nu = 0.3, 0.5 m square section, 48 x 6 x 6 cubes = 2,401 nodes,
-rho = 950 kg/m^3 so that the lattice's linear FEM (q1i) gives the -0.287 m static tip sag used for the
-peers), 200 frames at 60 fps, released from rest: mean tip sag and ms/frame vs substeps x iterations,
-beside the peers' figures measured while planning.  Usage: python benchmarks/xpbd.py [--quick]"""
+"""XPBD on the 4 m cantilever bar against linear FEM, the peers' figures, and a large-step sweep.
+
+Bar: 4 m x 0.5 m x 0.5 m, 48 x 6 x 6 cubes (2,401 nodes), E = 50 MPa, nu = 0.3, rho = 950 kg/m^3
+(the lattice's linear FEM gives the -0.287 m static tip sag used for the peers), fixed at x = 0,
+released from rest under gravity.  From the tip's free vibration about its sagged position:
+
+* static sag  = mean tip z over whole periods (between the first and last upward crossing);
+* period      = from the crossings of the mean;
+* log decrement of successive downward peaks (numerical damping of substepping);
+
+compared with linear FEM (``solve_static``, default element; first period from ``eigsh`` of the
+same lattice's K, M, shift-invert with a small negative sigma), as ratios, with ms/frame at 60 fps,
+side by side with the peers' figures measured while planning (not re-run here).  Then a large
+substep sweep (0.1-16 ms) on a coarser bar: energy growth and blow-up per constraint family
+(``sc_fem.xpbd.stability_sweep``).  Writes benchmarks/out/xpbd.png.
+
+Usage: python benchmarks/xpbd.py [--quick]     (default ~3-4 min, --quick < 1 min on 2 cores)
+"""
 
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from sc_fem.errors import InstabilityError
-from sc_fem.lattice import CubeModel
-from sc_fem.xpbd import XPBDSolver
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import out_path, print_table  # noqa: E402
 
-PEERS = [("pypbd FEM-XPBD 5x1", -2.1, 5.5), ("pypbd 400 substeps", -0.287 * 2.7, 830.0),
-         ("pbatoolkit SNH 50 substeps", -0.287 * 1.2, 249.0), ("NVIDIA Newton XPBD default", np.nan, np.nan)]
+from sc_fem._atomic import atomic_path  # noqa: E402
+from sc_fem.errors import InstabilityError  # noqa: E402
+from sc_fem.lattice import CubeModel  # noqa: E402
+from sc_fem.xpbd import XPBDSolver, stability_sweep  # noqa: E402
+
+# peers, measured while planning on the same bar: (name, sag / linear FEM, ms/frame)
+PEERS = [("pypbd FEM-XPBD 5x1", 7.3, 5.5), ("pypbd FEM-XPBD 400 substeps", 2.7, 830.0),
+         ("pbatoolkit stable NH XPBD 50 substeps", 1.2, 249.0), ("NVIDIA Newton XPBD default", np.inf, np.nan)]
+
+
+def bar(nx: int) -> CubeModel:
+    return CubeModel.box((nx, nx // 8, nx // 8), 4.0 / nx, youngs=50e6, poisson=0.3, density=950.0)
+
+
+def linear_fem(m: CubeModel):
+    """Static tip sag (m, mean over the tip face), static displacements (m, 3), first period (s)."""
+    import scipy.sparse.linalg as sla
+
+    from sc_fem.assemble import assemble
+    from sc_fem.static import solve_static
+
+    tip = m.node_index[:, 0] == m.dims[0]
+    u = solve_static(m, fix="x<0.01", gravity=(0, 0, -9.81)).displacements
+    fixed = np.flatnonzero(m.node_index[:, 0] == 0)
+    dofs = (3 * fixed[:, None] + np.arange(3)).ravel()
+    K, M = assemble(m, fixed_dofs=dofs)
+    w2 = sla.eigsh(K, k=2, M=M, sigma=-1.0, which="LM", return_eigenvectors=False)
+    return float(u[tip, 2].mean()), u, float(2 * np.pi / np.sqrt(w2.min()))
+
+
+def vibration(t: np.ndarray, z: np.ndarray):
+    """Mean over whole periods, period and mean log decrement of a decaying oscillation z(t)."""
+    mid = 0.5 * (z.max() + z[len(z) // 3:].min()) if len(z) > 6 else z.mean()
+    for _ in range(3):                                  # re-centre on the whole-period mean
+        s = np.sign(z - mid)
+        i = np.flatnonzero((s[:-1] < 0) & (s[1:] >= 0))  # upward crossings
+        tc = t[i] - (z[i] - mid) * (t[i + 1] - t[i]) / (z[i + 1] - z[i])
+        if len(i) < 2:
+            return np.nan, np.nan, np.nan
+        sel = slice(i[0] + 1, i[-1] + 1)
+        mid = float(np.mean(z[sel]))
+    period = float((tc[-1] - tc[0]) / (len(tc) - 1))
+    # downward peaks: before the first upward crossing, then one per whole period
+    amp = np.abs(np.array([z[: i[0] + 1].min()] + [z[a:b].min() for a, b in zip(i[:-1], i[1:])]) - mid)
+    dec = float(np.mean(np.log(amp[:-1] / amp[1:]))) if len(amp) > 1 else np.nan
+    return mid, period, dec
+
+
+def run_setting(m, fixed, tip, kind, ss, it, warm, seconds):
+    s = XPBDSolver(m, 1 / 60, substeps=ss, iterations=it, constraints=kind, fixed=fixed, warm_start=warm)
+    z0 = m.nodes_m[tip, 2].mean()
+    z, t0 = [], time.perf_counter()
+    blew = ""
+    try:
+        for _ in range(int(round(seconds * 60))):
+            z.append(s.step().positions[tip, 2].mean() - z0)
+    except InstabilityError as e:
+        blew = str(e).split(":")[0]
+    ms = (time.perf_counter() - t0) / max(len(z), 1) * 1e3
+    if blew:
+        return dict(sag=np.nan, period=np.nan, dec=np.nan, peak=np.nan, ms=ms, blew=blew)
+    z = np.array(z)
+    sag, period, dec = vibration(np.arange(1, len(z) + 1) / 60, z)
+    return dict(sag=sag, period=period, dec=dec, peak=float(z.min()), ms=ms, blew="")
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--quick", action="store_true", help="60 frames and fewer settings")
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true", help="24 x 3 x 3 bar, fewer settings (< 1 min)")
     args = ap.parse_args(argv)
-    frames = 60 if args.quick else 200
-    m = CubeModel.box((48, 6, 6), 4 / 48, youngs=50e6, poisson=0.3, density=950.0)
+    nx = 24 if args.quick else 48
+    m = bar(nx)
     fixed = np.flatnonzero(m.node_index[:, 0] == 0)
-    tip = m.node_index[:, 0] == 48
-    ref = None
-    try:
-        from sc_fem.static import solve_static
-        ref = float(solve_static(m, fix="x<0.01", gravity=(0, 0, -9.81)).displacements[tip, 2].mean())
-    except ImportError:
-        pass
-    settings = [(20, 1, "neohookean", False), (50, 1, "neohookean", False), (100, 1, "neohookean", False),
-                (50, 1, "neohookean", True), (10, 5, "neohookean", False), (50, 1, "distance", False)]
+    tip = m.node_index[:, 0] == nx
+    ref_sag, _, ref_T = linear_fem(m)
+    print(f"bar {m.dims} cubes, {m.n_nodes} nodes: linear FEM static tip sag {ref_sag:.4f} m, "
+          f"first period {ref_T:.4f} s")
+    settings = [("neohookean", 25, 1, False), ("neohookean", 50, 1, False), ("neohookean", 100, 1, False),
+                ("neohookean", 50, 1, True), ("neohookean", 25, 2, False), ("corotational", 50, 1, False),
+                ("distance", 50, 1, True)]
     if args.quick:
-        settings = settings[:2] + settings[3:4]
-    rows = []
-    for ss, it, kind, ws in settings:
-        s = XPBDSolver(m, 1 / 60, substeps=ss, iterations=it, constraints=kind, fixed=fixed, warm_start=ws)
-        z, t = [], time.perf_counter()
-        try:
-            for _ in range(frames):
-                z.append(s.step().positions[tip, 2].mean() - m.nodes_m[tip, 2].mean())
-        except InstabilityError:
-            z.append(np.nan)
-        ms = (time.perf_counter() - t) / len(z) * 1e3
-        z = np.array(z)
-        rows.append((f"sc_fem {kind} {ss}x{it}{' warm' if ws else ''}", float(np.mean(z)), float(z.min()), ms))
-    print(f"linear FEM static tip sag: {ref}  (peers' reference -0.287 m)")
-    print(f"{'method':38s} {'mean sag m':>10s} {'ratio':>6s} {'min m':>8s} {'ms/frame':>9s}")
-    for name, mean, lo, ms in rows:
-        print(f"{name:38s} {mean:10.3f} {mean / -0.287:6.2f} {lo:8.3f} {ms:9.1f}")
-    for name, mean, ms in PEERS:
-        print(f"{name:38s} {mean:10.3f} {mean / -0.287:6.2f} {'':8s} {ms:9.1f}")
-    out = Path(__file__).parent / "out"
-    out.mkdir(exist_ok=True)
+        settings = [("neohookean", 25, 1, False), ("neohookean", 50, 1, False), ("neohookean", 50, 1, True),
+                    ("corotational", 50, 1, False)]
+    seconds = 2.6 * ref_T
+    rows, pts = [], []
+    for kind, ss, it, warm in settings:
+        r = run_setting(m, fixed, tip, kind, ss, it, warm, seconds)
+        name = f"sc_fem {kind} {ss}x{it}{' warm' if warm else ''}"
+        rows.append([name, f"{1e3 / 60 / ss:.3g}", r["sag"], r["sag"] / ref_sag, r["period"] / ref_T,
+                     r["dec"], r["dec"] / (2 * np.pi), r["peak"] / (2 * ref_sag), r["ms"], r["blew"] or "no"])
+        pts.append((name, r["ms"], abs(r["sag"] / ref_sag - 1), abs(r["period"] / ref_T - 1)))
+        print(f"  {name}: done", file=sys.stderr, flush=True)
+    for name, ratio, ms in PEERS:
+        rows.append([name + " (published)", "", ratio * ref_sag, ratio, np.nan, np.nan, np.nan, np.nan, ms, ""])
+        pts.append((name, ms, abs(ratio - 1), np.nan))
+    print_table(["method", "substep ms", "static sag m", "sag/FEM", "period/FEM", "log dec", "zeta",
+                 "peak/(2 FEM sag)", "ms/frame", "blew up"], rows)
+
+    # large-substep stability sweep on a coarse bar
+    mc = bar(16 if args.quick else 24)
+    fc = np.flatnonzero(mc.node_index[:, 0] == 0)
+    _, uc, Tc = linear_fem(mc)
+    damp = 2 * (2 * np.pi / Tc)          # critical for the first mode: settles in ~1 s
+    dts = [1e-4, 2.5e-4, 5e-4, 1e-3, 2e-3, 4e-3, 8e-3, 16e-3]
+    if args.quick:
+        dts = [2.5e-4, 1e-3, 4e-3, 16e-3]
+    srows = []
+    for kind in ("neohookean", "corotational"):
+        for r in stability_sweep(mc, dts, duration=0.6 if args.quick else 1.0, fixed=fc, reference=uc,
+                                 constraints=kind, damping=damp):
+            srows.append([kind, r.dt * 1e3, r.max_energy_growth, "yes" if r.blew_up else "no", r.error,
+                          r.ms_per_second])
+    print(f"\nlarge-substep sweep, bar {mc.dims} cubes, released from rest, 1 iteration, "
+          f"damping {damp:.3g}/s (energy growth in units of M |g| diameter; error = |u(end) - u_FEM| / |u_FEM|):")
+    print_table(["constraints", "substep ms", "max energy growth", "blew up", "final-u error", "ms per sim s"],
+                srows)
+
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(figsize=(7, 4))
-    for name, mean, _, ms in rows + [(n, a, None, b) for n, a, b in PEERS]:
-        ax.scatter(ms, mean / -0.287, label=name)
-    ax.axhline(1.0, color="k", lw=0.5)
-    ax.set_xscale("log")
-    ax.set_xlabel("ms / frame")
-    ax.set_ylabel("mean sag / linear FEM")
-    ax.legend(fontsize=6)
-    from sc_fem._atomic import atomic_path
-    with atomic_path(out / "xpbd_bar.png") as p:
+
+    fig, axs = plt.subplots(1, 2, figsize=(11, 4.2))
+    for ax, k, lab in ((axs[0], 2, "|static sag / FEM - 1|"), (axs[1], 3, "|period / FEM - 1|")):
+        for name, ms, *errs in pts:
+            e = errs[k - 2]
+            if np.isfinite(ms) and np.isfinite(e):
+                ax.scatter(ms, max(e, 1e-4), label=name, marker="s" if "published" in name or "sc_fem" not in name
+                           else "o")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("ms / frame (60 fps)")
+        ax.set_ylabel(lab)
+        ax.grid(True, which="both", lw=0.3)
+    axs[0].legend(fontsize=6)
+    fig.suptitle(f"XPBD on the 4 m bar ({m.n_nodes} nodes) vs linear FEM")
+    fig.tight_layout()
+    with atomic_path(out_path("xpbd.png")) as p:
         fig.savefig(p, dpi=120, format="png")
+    print(f"wrote {out_path('xpbd.png')}")
     return 0
 
 

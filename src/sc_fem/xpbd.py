@@ -27,6 +27,26 @@ Constraints (``constraints=``):
     (no hourglass modes), the volumetric term is 1-point (no volumetric locking). Still two
     scalar constraints per cube, so one vectorized sweep per colour.
 
+``"corotational"`` -- per cube an ARAP block ``C_D = S (X - R X_ref) / h`` (``S = sqrt(L)``, so
+    ``|C_D|^2 h^3 = int |grad x - R|^2`` exactly; ``R`` = polar rotation of the centre ``F``,
+    refreshed once per iteration; compliance ``1 / (2 mu V)``) solved exactly as a 24-dof block at
+    fixed ``R``, then the volume constraint ``det F - 1`` (compliance ``1 / (lambda V)``). Zero
+    rest values, no cancelling multipliers. Eigen-analysis of one substep's linearised map at rest
+    (tests): spectral radius <= 1 at 1-16 ms substeps, whereas the Neo-Hookean pair reaches ~3.8 at
+    1 ms and ~2.5e5 at 4 ms on a 5 MPa 5 cm lattice (its C_D and C_H gradients are parallel at
+    rest, so the 2x2 solve produces large cancelling multipliers ~1/alpha~ and the one-sweep
+    Gauss-Seidel overshoots). Limits (measured): with one iteration at long substeps it is far
+    too soft (8x2x2 cantilever: 4.1x the FEM sag at 5 ms) and, with gravity, it pumps spurious
+    elastic energy (growth > 10 M|g|D at >= 8 ms on that beam -> InstabilityError); converged it is
+    ~11 % stiffer than q1i on a 2-cube-thick beam (fully integrated rotation term), and it costs
+    ~2-3x the Neo-Hookean sweep. Use it when the Neo-Hookean pair blows up; not the default.
+
+Blow-up detection: after every step, non-finite positions/velocities or a total energy above its
+start by more than ``max_energy_growth`` (default 10) x ``energy_scale`` (max of initial kinetic +
+elastic energy and ``M |g| diameter``) raise :class:`~sc_fem.errors.InstabilityError` naming the step
+and the substep length. :func:`stability_sweep` returns (dt, max energy growth, blown up, error)
+rows for a model (used by ``benchmarks/xpbd.py``).
+
 ``"distance"`` -- classic per-cube distance constraints along the 12 edges, 12 face diagonals and
     4 body diagonals (a central-force lattice). Stiffnesses ``k_edge = k_face = M h / 12``,
     ``k_body = M h / 4`` with the P-wave modulus ``M = lambda + 2 mu`` reproduce the uniaxial-strain
@@ -45,7 +65,13 @@ predictor). Then a static equilibrium is an exact fixed point for any iteration 
 removes the "effective stiffness depends on iterations" bias of XPBD at rest.
 
 Numerical damping: XPBD with few iterations is implicit-Euler-like and dissipates energy; the
-dissipation falls with more substeps (see ``benchmarks/xpbd.py``). ``damping`` adds explicit
+dissipation falls with more substeps. Measured (``python benchmarks/xpbd.py --quick``: 4 m bar,
+24 x 3 x 3 cubes, first bending mode T = 0.866 s, 2.6 periods of free vibration, log decrement of
+successive downward tip peaks): neohookean 25 substeps/frame (0.67 ms) delta = 0.021 (zeta =
+0.34 %), 50 substeps delta = 0.016 (zeta = 0.26 %), 50 substeps warm start delta = 0.010 (0.17 %),
+corotational 50 substeps delta = 0.020 (0.31 %); i.e. 1.4x (0.67 ms) to 2.2x (0.33 ms) implicit
+Euler's zeta = omega dt_s / 2 (omega = 7.25 rad/s): halving the substep removes only ~1/4 of the
+damping, because the unconverged single iteration adds its own dissipation. The full-size figures are printed by the default run. ``damping`` adds explicit
 mass-proportional damping ``v <- v / (1 + damping * dt_s)`` (1/s).
 
 Units: positions in metres, velocities m/s, times s, energies J.
@@ -301,7 +327,8 @@ class XPBDSolver:
     def __init__(self, model: CubeModel, dt: float, *, substeps: int = 10, iterations: int = 1,
                  constraints: str = "neohookean", gravity=(0.0, 0.0, -9.81), fixed=None,
                  damping: float = 0.0, gauss_seidel: bool = True, relaxation: float = 1.0,
-                 warm_start: bool = False, positions=None, velocities=None) -> None:
+                 warm_start: bool = False, symmetric: bool = False, max_energy_growth: float = 10.0,
+                 positions=None, velocities=None) -> None:
         if not isinstance(model, CubeModel):
             raise InputError(f"model must be a CubeModel, got {type(model).__name__}")
         if constraints not in CONSTRAINTS:
@@ -318,6 +345,8 @@ class XPBDSolver:
             raise InputError(f"relaxation must be in (0, 2), got {self.relaxation}")
         self.gauss_seidel = bool(gauss_seidel)
         self.warm_start = bool(warm_start)
+        self.symmetric = bool(symmetric)
+        self.max_energy_growth = positive_scalar(max_energy_growth, "max_energy_growth")
         m = model.n_nodes
         self.rest = model.nodes_m.copy()
         x = self.rest.copy() if positions is None else as_points(positions, "positions").copy()
@@ -332,6 +361,13 @@ class XPBDSolver:
         self.time, self.n_steps = 0.0, 0
         self.h = model.h
         self._build()
+        e0 = self.energy()
+        self._energy0 = e0.total
+        lo, hi = self.rest.min(0), self.rest.max(0)
+        self.energy_scale = max(abs(e0.kinetic) + abs(e0.elastic),
+                                float(self.mass.sum() * np.linalg.norm(self.gravity) * np.linalg.norm(hi - lo)),
+                                1e-300)
+        """Energy scale (J) of the runaway test: max(initial kinetic + elastic, M |g| diameter)."""
 
     # ------------------------------------------------------------------ setup
     def _build(self) -> None:
@@ -422,6 +458,7 @@ class XPBDSolver:
             A = np.einsum("ab,nb,bc->nac", S_REF, Wc, S_REF) / self.h ** 2
             A += (self._alphaD / ds ** 2)[:, None, None] * np.eye(8)
             self._Ainv = np.linalg.inv(A)
+            self._Ainv_g = [self._Ainv[i] for i in self._gidx]
             self._Ainv_ds = ds
         return self._Ainv
 
@@ -429,9 +466,17 @@ class XPBDSolver:
         self._R = polar_rotation(centre_F(x[self.model.hexes], self.h))
 
     def _project_corot(self, x: np.ndarray, g: int, aD: np.ndarray, aH: np.ndarray,
-                       scale=None, accumulate: bool = False):
+                       scale=None, accumulate: bool = False, reverse: bool = False):
         """Project the cubes of group ``g``: deviatoric block (exact 24-dof solve at fixed R),
-        then (Gauss-Seidel) the volume constraint ``det F - 1``."""
+        then (Gauss-Seidel) the volume constraint ``det F - 1`` (``reverse``: volume first)."""
+        if reverse:
+            self._project_vol(x, g, aH)
+            self._project_dev(x, g, aD)
+            return None
+        if not accumulate:
+            self._project_dev(x, g, aD)
+            self._project_vol(x, g, aH)
+            return None
         idx, hexes, W = self._gidx[g], self._gnodes[g], self._gw[g]
         h = self.h
         X = x[hexes]
@@ -458,6 +503,30 @@ class XPBDSolver:
             return hexes, dXD + WgH * dH[:, None, None]
         x[hexes] = Y + WgH * dH[:, None, None]
         return None
+
+    def _project_dev(self, x: np.ndarray, g: int, aD: np.ndarray) -> None:
+        """Deviatoric (ARAP) block of group ``g``: exact 24-dof solve at fixed ``R``."""
+        idx, hexes, W = self._gidx[g], self._gnodes[g], self._gw[g]
+        X = x[hexes]
+        rhs = -corotational_terms(X, self.h, self._R[idx]) - aD[idx][:, None, None] * self._lamD[idx]
+        dl = np.matmul(self._Ainv_g[g], rhs)                                            # (n, 8, 3)
+        self._lamD[idx] += dl
+        x[hexes] = X + W * np.matmul(S_REF, dl) * (1.0 / self.h)
+
+    def _project_vol(self, x: np.ndarray, g: int, aH: np.ndarray) -> None:
+        """Volume constraint ``det F_centre - 1`` of the cubes of group ``g``."""
+        idx, hexes, W = self._gidx[g], self._gnodes[g], self._gw[g]
+        X = x[hexes]
+        F = centre_F(X, self.h)
+        cof = _cofactor(F)
+        J = np.einsum("ij,ij->i", F[:, 0, :], cof[:, 0, :])
+        gH = np.matmul(DN_CENTRE, cof.transpose(0, 2, 1)) * (1.0 / self.h)             # (n, 8, 3)
+        WgH = W * gH
+        a = aH[idx]
+        n = len(idx)
+        dH = (1.0 - J - a * self._lamH[idx]) / (np.einsum("ij,ij->i", WgH.reshape(n, 24), gH.reshape(n, 24)) + a)
+        self._lamH[idx] += dH
+        x[hexes] = X + WgH * dH[:, None, None]
 
     def _project_dist(self, x: np.ndarray, g: int, alpha: np.ndarray, scale=None,
                       accumulate: bool = False):
@@ -486,8 +555,16 @@ class XPBDSolver:
         if self.constraints == "corotational":
             self._update_rotations(x)
         if self.gauss_seidel:
-            for g in range(len(self._gidx) - 1):
+            ng = len(self._gidx) - 1
+            for g in range(ng):
                 project(x, g, *a_t)
+            if self.symmetric:
+                if self.constraints == "corotational":
+                    for g in reversed(range(ng)):
+                        project(x, g, *a_t, reverse=True)
+                else:
+                    for g in reversed(range(ng)):
+                        project(x, g, *a_t)
             return
         nodes, dX = project(x, len(self._gidx) - 1, *a_t, scale=self._jac, accumulate=True)
         flat = nodes.ravel()
@@ -562,12 +639,24 @@ class XPBDSolver:
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):   # checked just below
             for _ in range(self.substeps):
                 self.substep(ds)
-        self.time += self.dt
-        self.n_steps += 1
-        if not np.all(np.isfinite(self._x)):
-            raise InstabilityError(f"XPBD blew up at t = {self.time:g} s (non-finite positions); "
-                                   f"use more substeps than {self.substeps}")
+            self.time += self.dt
+            self.n_steps += 1
+            finite = bool(np.all(np.isfinite(self._x)) and np.all(np.isfinite(self._v)))
+            growth = self.energy_growth() if finite else np.inf
+        if not finite or not growth <= self.max_energy_growth:
+            what = ("non-finite positions" if not finite else
+                    f"energy grew by {growth:.3g} x its scale {self.energy_scale:.3g} J")
+            raise InstabilityError(
+                f"XPBD ({self.constraints}) blew up at step {self.n_steps} (t = {self.time:g} s): {what}; "
+                f"substep {ds * 1e3:.4g} ms ({self.substeps} substeps of the {self.dt:g} s step) is too "
+                f"long -- use more substeps" + (" or constraints='corotational'" if self.constraints ==
+                                               "neohookean" else ""))
         return self.state
+
+    def energy_growth(self) -> float:
+        """``(E_total - E_total(t=0)) / energy_scale`` now (dimensionless; XPBD should keep it
+        <= ~0 up to the work of gravity, which is bounded by one ``energy_scale``)."""
+        return (self.energy().total - self._energy0) / self.energy_scale
 
     @property
     def state(self) -> XPBDState:
@@ -648,3 +737,85 @@ def simulate_xpbd(model: CubeModel, dt: float, n_steps: int, *, substeps: int = 
                         gravity=gravity, fixed=fixed, damping=damping, gauss_seidel=gauss_seidel,
                         warm_start=warm_start, **kw)
     yield from solver.run(n_steps, progress=progress)
+
+
+@dataclass(frozen=True)
+class StabilityRow:
+    """One row of :func:`stability_sweep`.
+
+    Attributes
+    ----------
+    dt : float
+        Substep length, s.
+    max_energy_growth : float
+        ``max_t (E(t) - E(0)) / energy_scale`` (see :meth:`XPBDSolver.energy_growth`); ``inf``
+        when the run blew up.
+    blew_up : bool
+        :class:`~sc_fem.errors.InstabilityError` was raised.
+    error : float
+        ``|| u(end) - u_ref || / || u_ref ||`` over all nodes (``nan`` without a reference or
+        after a blow-up): the final displacement against a static reference (pass ``damping`` so
+        that the run settles, e.g. twice the first angular frequency).
+    ms_per_second : float
+        Wall milliseconds per simulated second.
+    """
+
+    dt: float
+    max_energy_growth: float
+    blew_up: bool
+    error: float
+    ms_per_second: float
+
+
+def stability_sweep(model: CubeModel, substep_sizes, *, duration: float = 0.5, frame_dt: float | None = None,
+                    fixed=None, reference=None, constraints: str = "neohookean", iterations: int = 1,
+                    gravity=(0.0, 0.0, -9.81), **kw) -> list[StabilityRow]:
+    """XPBD released from rest under gravity for each substep length: energy growth, blow-up, error.
+
+    Parameters
+    ----------
+    model : CubeModel
+    substep_sizes : sequence of float
+        Substep lengths, s (e.g. ``[1e-4, 4e-4, 1e-3, 4e-3, 16e-3]``).
+    duration : float
+        Simulated seconds per run.
+    frame_dt : float, optional
+        Frame step, s (default: the substep itself when it is longer than 1/60 s, else 1/60 s
+        rounded to a whole number of substeps).
+    fixed : array_like, optional
+        Fixed nodes (see :class:`XPBDSolver`).
+    reference : array_like, shape (m, 3), optional
+        Static displacement (m) to compare the time-averaged displacement with.
+    constraints, iterations, gravity, **kw
+        Passed to :class:`XPBDSolver`.
+
+    Returns
+    -------
+    list of StabilityRow
+    """
+    import time as _time
+
+    duration = positive_scalar(duration, "duration")
+    ref = None if reference is None else as_points(reference, "reference")
+    rows = []
+    for ds in np.atleast_1d(np.asarray(substep_sizes, dtype=float)):
+        ds = positive_scalar(float(ds), "substep_sizes")
+        n_sub = 1 if ds >= 1 / 60 else max(1, int(round((1 / 60 if frame_dt is None else frame_dt) / ds)))
+        solver = XPBDSolver(model, ds * n_sub, substeps=n_sub, iterations=iterations, constraints=constraints,
+                            fixed=fixed, gravity=gravity, **kw)
+        n_steps = max(1, int(round(duration / solver.dt)))
+        growth, blew = -np.inf, False
+        t0 = _time.perf_counter()
+        try:
+            for _ in range(n_steps):
+                st = solver.step()
+                growth = max(growth, solver.energy_growth())
+        except InstabilityError:
+            blew, growth = True, np.inf
+        wall = _time.perf_counter() - t0
+        err = np.nan
+        if ref is not None and not blew:
+            err = float(np.linalg.norm(st.positions - solver.rest - ref) / np.linalg.norm(ref))
+        rows.append(StabilityRow(dt=float(ds), max_energy_growth=float(growth), blew_up=blew, error=err,
+                                 ms_per_second=1e3 * wall / (solver.time or 1.0)))
+    return rows

@@ -1,0 +1,554 @@
+"""Modal analysis of a cube lattice, baked onto the source mesh: :func:`modal` -> :class:`ModalBasis`.
+
+The generalized eigenproblem ``K phi = omega^2 M phi`` (consistent mass by default) is solved by
+:func:`sc_fem.eigen.solve_eigen` (shift-invert with a negative shift through the Cholesky
+backend, or LOBPCG + AMG when a factorization would not fit). Modes are mass-normalized
+(``phi^T M phi = 1``), frequencies are in Hz, and the relative residual
+``||K phi - omega^2 M phi|| / ||K phi||`` of every mode is reported.
+
+Rigid-body modes (6 per unsupported connected part) are recognised by their frequency
+(``omega^2 < RIGID_FRACTION * mean(diag K) / mean(diag M)``, i.e. numerically zero next to the
+stiffest element) and removed unless ``keep_rigid=True`` (then flagged in ``ModalBasis.rigid``).
+
+The modes are then *baked*: with the trilinear embedding ``W`` (:func:`sc_fem.embed.embed`),
+each mode on the source mesh is ``W @ phi`` -- an ``(n_vertices, 3)`` array -- and the lattice is
+thrown away unless ``keep_lattice=True``.
+
+Units: a mode value is a displacement in metres per unit modal coordinate (m kg^-1/2), so a
+modal coordinate ``q`` (m kg^1/2) gives the displacement ``sum_k q_k phi_k`` in metres; an
+impulse ``J`` (N s) on a vertex ``v`` gives the modal velocity ``phi_k(v) . J``.
+
+Damping (stored per mode as a ratio ``zeta_k``): ``damping_ratio=zeta`` (one value or one per
+mode, default :data:`DEFAULT_DAMPING_RATIO`) or ``rayleigh=(alpha, beta)``
+(``C = alpha M + beta K``, i.e. ``zeta_k = alpha / (2 omega_k) + beta omega_k / 2``).
+
+*A model no bigger than the scene needs*: ``n_modes=K``, ``max_frequency=F`` (all modes below
+``F`` Hz, e.g. half the playback frame rate -- faster modes only alias), and
+``resolution="auto"``: the coarsest grid of ``resolutions`` whose first ``K`` frequencies agree
+with those of the next finer grid within ``tolerance`` (relative); the table it decided from is
+in :attr:`ModalBasis.resolution_table`.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .elements import DEFAULT_ELEMENT, check_element
+from .errors import InputError, SolverError
+from .lattice import CubeModel
+
+DEFAULT_N_MODES = 10
+"""Modes computed when neither ``n_modes`` nor ``max_frequency`` is given."""
+
+DEFAULT_DAMPING_RATIO = 0.01
+"""Damping ratio of every mode when no damping is given (1 % of critical)."""
+
+RIGID_FRACTION = 1e-10
+"""A mode is rigid when ``omega^2 < RIGID_FRACTION * lambda_scale`` (``lambda_scale`` =
+``mean(diag K) / mean(diag M)``, the order of the highest eigenvalue). Rigid modes come out at
+about ``1e-16 * lambda_scale`` (round-off); the first elastic mode of even a 200-cube-long thin
+rod is above ``1e-8 * lambda_scale``."""
+
+AUTO_RESOLUTIONS: tuple[int, ...] = (12, 16, 24, 32, 48, 64)
+"""Grids tried by ``resolution="auto"`` (cubes along the longest axis), coarsest first."""
+
+DEFAULT_RESOLUTION_TOLERANCE = 0.05
+"""Relative frequency agreement that ``resolution="auto"`` asks for by default."""
+
+
+@dataclass(frozen=True, eq=False)
+class ModalBasis:
+    """Mass-normalized vibration modes baked onto a mesh.
+
+    Attributes
+    ----------
+    frequencies : ndarray, shape (k,)
+        Natural frequencies, Hz, ascending (0 for rigid modes).
+    modes : ndarray, shape (k, n, 3)
+        Mode shapes at the ``vertices``: displacement in metres per unit modal coordinate
+        (m kg^-1/2); ``phi^T M phi = 1`` on the lattice.
+    vertices : ndarray, shape (n, 3)
+        Rest positions of the mesh the modes are baked on, model units.
+    faces : ndarray of int, shape (f, 3)
+        Triangles of that mesh ((0, 3) for a point set).
+    damping : ndarray, shape (k,)
+        Damping ratio ``zeta`` of each mode (0 for rigid modes).
+    damping_spec : dict
+        How ``damping`` was specified: ``{"kind": "ratio", "zeta": ...}`` or
+        ``{"kind": "rayleigh", "alpha": ..., "beta": ...}``.
+    rigid : ndarray of bool, shape (k,)
+        Which modes are rigid-body modes (only when kept).
+    residuals : ndarray, shape (k,)
+        ``||K phi - omega^2 M phi|| / ||K phi||`` of each mode (see :func:`sc_fem.eigen.residuals`).
+    n_rigid_removed : int
+        Rigid-body modes found and dropped.
+    scale : float
+        Metres per model unit (divide a displacement in metres by it to get model units).
+    pitch : float
+        Cube edge, model units.
+    resolution : int
+        Cubes along the longest axis of the lattice the modes were computed on.
+    element : str
+        Element type.
+    material : dict
+        ``name``, ``youngs`` / ``poisson`` / ``density`` (min and max over cubes), ``mass`` (kg).
+    fixed : dict
+        ``specs`` (the ``--fix`` specs), ``vertices`` (count of ``--fix-vertices``),
+        ``n_nodes`` (fixed lattice nodes).
+    source : str
+        Source model name / file name.
+    source_sha256 : str
+        Checksum of the source file (or of the arrays).
+    n_cubes, n_dofs : int
+        Size of the lattice problem.
+    eigen : dict
+        Solver report: ``method``, ``backend``, ``reason``, ``sigma``, ``seconds``, memory estimate.
+    timings : dict
+        Wall seconds per stage.
+    resolution_table : list of dict or None
+        ``resolution="auto"``: one row per grid tried (resolution, cubes, DOFs, seconds,
+        frequencies, max relative change to the next finer grid, chosen).
+    lattice : CubeModel or None
+        The lattice (``keep_lattice=True`` only).
+    node_modes : ndarray, shape (k, m, 3) or None
+        Modes at the lattice nodes, m kg^-1/2 (``keep_lattice=True`` only).
+    """
+
+    frequencies: np.ndarray
+    modes: np.ndarray
+    vertices: np.ndarray
+    faces: np.ndarray
+    damping: np.ndarray
+    damping_spec: dict
+    rigid: np.ndarray
+    residuals: np.ndarray
+    n_rigid_removed: int
+    scale: float
+    pitch: float
+    resolution: int
+    element: str
+    material: dict = field(default_factory=dict)
+    fixed: dict = field(default_factory=dict)
+    source: str = ""
+    source_sha256: str = ""
+    n_cubes: int = 0
+    n_dofs: int = 0
+    eigen: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
+    resolution_table: list | None = None
+    lattice: CubeModel | None = None
+    node_modes: np.ndarray | None = None
+
+    @property
+    def n_modes(self) -> int:
+        """Number of modes ``k``."""
+        return len(self.frequencies)
+
+    @property
+    def n_vertices(self) -> int:
+        """Number of vertices ``n``."""
+        return len(self.vertices)
+
+    @property
+    def omegas(self) -> np.ndarray:
+        """Angular frequencies ``2 pi f``, rad/s, shape (k,)."""
+        return 2.0 * np.pi * self.frequencies
+
+    def summary(self) -> str:
+        """A short text table: frequencies, damping ratios and residuals."""
+        rows = [f"  {'mode':>4}  {'f [Hz]':>12}  {'zeta':>8}  {'residual':>9}"]
+        for i in range(self.n_modes):
+            tag = "  rigid" if self.rigid[i] else ""
+            rows.append(f"  {i:>4}  {self.frequencies[i]:>12.5g}  {self.damping[i]:>8.4g}  "
+                        f"{self.residuals[i]:>9.2e}{tag}")
+        return "\n".join(rows)
+
+    def __repr__(self) -> str:
+        f = ", ".join(f"{x:.4g}" for x in self.frequencies[:6])
+        more = ", ..." if self.n_modes > 6 else ""
+        return (f"ModalBasis({self.n_modes} modes on {self.n_vertices} vertices, f = [{f}{more}] Hz, "
+                f"{self.n_cubes} cubes, element {self.element!r}, {self.n_rigid_removed} rigid removed)")
+
+
+# ---------------------------------------------------------------------------------------- helpers
+def damping_ratios(omegas: np.ndarray, *, damping_ratio=None, rayleigh=None) -> tuple[np.ndarray, dict]:
+    """Per-mode damping ratios, shape (k,), and the spec dict stored with them.
+
+    Parameters
+    ----------
+    omegas : ndarray, shape (k,)
+        Angular frequencies, rad/s (0 = rigid mode, which gets ``zeta = 0``).
+    damping_ratio : float or array_like (k,), optional
+        ``zeta`` per mode (>= 0).
+    rayleigh : (alpha, beta), optional
+        ``C = alpha M + beta K``: alpha in 1/s, beta in s.
+    """
+    omegas = np.asarray(omegas, dtype=float)
+    k = len(omegas)
+    if damping_ratio is not None and rayleigh is not None:
+        raise InputError("give damping_ratio or rayleigh, not both")
+    elastic = omegas > 0
+    if rayleigh is not None:
+        try:
+            alpha, beta = (float(x) for x in rayleigh)
+        except (TypeError, ValueError):
+            raise InputError(f"rayleigh must be a pair (alpha, beta), got {rayleigh!r}") from None
+        if not (np.isfinite(alpha) and np.isfinite(beta)) or alpha < 0 or beta < 0:
+            raise InputError(f"rayleigh coefficients must be finite and >= 0, got alpha={alpha}, beta={beta}")
+        zeta = np.zeros(k)
+        w = omegas[elastic]
+        zeta[elastic] = alpha / (2.0 * w) + beta * w / 2.0
+        return zeta, {"kind": "rayleigh", "alpha": alpha, "beta": beta}
+    z = DEFAULT_DAMPING_RATIO if damping_ratio is None else damping_ratio
+    arr = np.asarray(z, dtype=float)
+    if arr.ndim == 0:
+        arr = np.full(k, float(arr))
+    if arr.shape != (k,):
+        raise InputError(f"damping_ratio must be a scalar or have shape ({k},), got {arr.shape}")
+    if not np.all(np.isfinite(arr)) or np.any(arr < 0):
+        raise InputError("damping_ratio must be finite and >= 0")
+    arr = np.where(elastic, arr, 0.0)
+    spec = {"kind": "ratio", "zeta": float(z) if np.ndim(z) == 0 else arr.tolist()}
+    return arr, spec
+
+
+def _unsupported_parts(model: CubeModel, fixed: np.ndarray) -> int:
+    """Connected parts (through shared cubes) that contain no fixed node."""
+    from .static import _node_components
+
+    labels = _node_components(model)
+    n_parts = int(labels.max()) + 1
+    held = np.zeros(n_parts, dtype=bool)
+    held[labels[fixed]] = True
+    return int(n_parts - held.sum())
+
+
+def _material_record(model: CubeModel) -> dict:
+    return {"name": str(model.info.get("material", "")),
+            "youngs": [float(model.youngs.min()), float(model.youngs.max())],
+            "poisson": [float(model.poisson.min()), float(model.poisson.max())],
+            "density": [float(model.density.min()), float(model.density.max())],
+            "mass": model.total_mass}
+
+
+def _log(msg: str, progress: bool) -> None:
+    if progress:
+        print(msg, file=sys.stderr, flush=True)
+
+
+def _solve_modes(model: CubeModel, *, n_modes, max_frequency, fixed_nodes_, element, lumped, keep_rigid,
+                 method, backend, max_modes, max_memory, progress):
+    """Eigenpairs of one lattice; returns (lam, X (n_free, k), rigid, res, asm, eig, timings)."""
+    from .assemble import Assembler
+    from .boundary import fixed_dofs
+    from .eigen import lambda_scale, residuals, rigid_body_modes, solve_eigen
+
+    t = {}
+    t0 = time.perf_counter()
+    asm = Assembler(model, element, fixed_dofs=fixed_dofs(fixed_nodes_))
+    K = asm.stiffness()
+    M = asm.mass(lumped=lumped)
+    t["assemble"] = time.perf_counter() - t0
+    n = K.shape[0]
+    if n == 0:
+        raise InputError("every node is fixed: no modes to compute")
+    scale = lambda_scale(K, M)
+    n_rigid_expected = 6 * _unsupported_parts(model, fixed_nodes_)
+    want = DEFAULT_N_MODES if (n_modes is None and max_frequency is None) else n_modes
+    lam_max = None if max_frequency is None else (2.0 * np.pi * max_frequency) ** 2
+    k = n_rigid_expected + (want if want is not None else 12)
+    near_null = rigid_body_modes(model.nodes_m, asm.free_dofs)
+    t["eigensolve"] = 0.0
+    while True:                                                   # loop: grow k until enough modes
+        k = min(k, n - 1, max_modes + n_rigid_expected + 6)
+        if k < 1:
+            raise InputError(f"the model has only {n} free DOFs: too few for a modal analysis")
+        t0 = time.perf_counter()
+        eig = solve_eigen(K, M, k, method=method, backend=backend, near_null=near_null, max_memory=max_memory)
+        t["eigensolve"] += time.perf_counter() - t0
+        lam = eig.eigenvalues
+        rigid = lam < RIGID_FRACTION * scale
+        n_el = int((~rigid).sum())
+        _log(f"  eigensolve: {k} pairs, {eig.method}/{eig.backend}, {n_el} elastic, "
+             f"top {np.sqrt(max(lam[-1], 0)) / 2 / np.pi:.4g} Hz", progress)
+        at_limit = k >= n - 1 or k >= max_modes + n_rigid_expected + 6
+        if lam_max is not None:
+            done = lam[-1] >= lam_max or (want is not None and n_el >= want)
+        else:
+            done = n_el >= want
+        if done or at_limit:
+            break
+        k = max(2 * k, k + (want - n_el if want is not None and lam_max is None else 0))
+    sel = np.ones(len(lam), dtype=bool)
+    if lam_max is not None:
+        sel &= rigid | (lam < lam_max)
+    if want is not None:
+        el_rank = np.cumsum(~rigid)
+        sel &= rigid | (el_rank <= want)
+    if not keep_rigid:
+        sel &= ~rigid
+    res = residuals(K, M, lam, eig.vectors)
+    info = {"method": eig.method, "backend": eig.backend, "reason": eig.reason, "sigma": eig.sigma,
+            "seconds": eig.seconds, "k_computed": int(len(lam)), "n_rigid_expected": n_rigid_expected,
+            "n_rigid_found": int(rigid.sum()), "lambda_scale": scale, **eig.info}
+    if lam_max is not None and not (lam[-1] >= lam_max) and not (want is not None and (~rigid).sum() >= want):
+        info["truncated"] = f"max_modes={max_modes} reached before {max_frequency:g} Hz"
+    return lam[sel], eig.vectors[:, sel], rigid[sel], res[sel], int(rigid.sum()) if not keep_rigid else 0, \
+        asm, info, t
+
+
+def _bake(asm, X: np.ndarray, W) -> tuple[np.ndarray, np.ndarray]:
+    """Node modes (k, m, 3) and vertex modes ``W @ phi`` (k, n, 3) from free-DOF vectors (n_free, k)."""
+    node = asm.expand(X)                                          # (m, 3, k)
+    m, _, k = node.shape
+    flat = node.reshape(m, 3 * k)
+    vert = np.asarray(W @ flat).reshape(-1, 3, k)
+    return np.ascontiguousarray(node.transpose(2, 0, 1)), np.ascontiguousarray(vert.transpose(2, 0, 1))
+
+
+def _resolve_fixed(model: CubeModel, fix, fix_vertices, mesh_vertices) -> np.ndarray:
+    from .boundary import fixed_nodes
+
+    if fix is None and fix_vertices is None:
+        return np.zeros(0, dtype=np.int64)
+    if fix_vertices is not None and mesh_vertices is None:
+        raise InputError("fix_vertices needs the source mesh (mesh=) to locate the vertices")
+    return fixed_nodes(model, fix, vertices=fix_vertices,
+                       mesh_vertices=None if fix_vertices is None else mesh_vertices)
+
+
+def _fix_record(fix, fix_vertices, n_fixed: int) -> dict:
+    if fix is None:
+        specs = []
+    elif isinstance(fix, (list, tuple)):
+        specs = [str(s) for s in fix]
+    else:
+        specs = [str(fix)]
+    return {"specs": specs, "vertices": 0 if fix_vertices is None else int(np.size(fix_vertices)),
+            "n_nodes": int(n_fixed)}
+
+
+# ---------------------------------------------------------------------------------------- modal
+def _modal_one(model: CubeModel, mesh, *, n_modes, max_frequency, fix, fix_vertices, element, lumped,
+               damping_ratio, rayleigh, keep_rigid, keep_lattice, method, backend, max_modes, max_memory,
+               progress, timings: dict) -> ModalBasis:
+    from .embed import embed
+
+    if mesh is not None:
+        vertices = np.asarray(mesh.vertices, dtype=float)
+        faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
+        source = str(mesh.metadata.get("source", model.info.get("source", "")))
+        sha = str(mesh.metadata.get("sha256", model.info.get("sha256", "")))
+    else:
+        vertices, faces = model.nodes, np.zeros((0, 3), dtype=np.int64)
+        source, sha = str(model.info.get("source", "")), str(model.info.get("sha256", ""))
+    fixed = _resolve_fixed(model, fix, fix_vertices, vertices if mesh is not None else None)
+    lam, X, rigid, res, n_removed, asm, info, t = _solve_modes(
+        model, n_modes=n_modes, max_frequency=max_frequency, fixed_nodes_=fixed, element=element,
+        lumped=lumped, keep_rigid=keep_rigid, method=method, backend=backend, max_modes=max_modes,
+        max_memory=max_memory, progress=progress)
+    timings.update(t)
+    t0 = time.perf_counter()
+    W = embed(model, vertices)
+    node_modes, vertex_modes = _bake(asm, X, W)
+    timings["bake"] = time.perf_counter() - t0
+    omegas = np.where(rigid, 0.0, np.sqrt(np.maximum(lam, 0.0)))
+    zeta, spec = damping_ratios(omegas, damping_ratio=damping_ratio, rayleigh=rayleigh)
+    return ModalBasis(
+        frequencies=omegas / (2.0 * np.pi), modes=vertex_modes, vertices=vertices, faces=faces,
+        damping=zeta, damping_spec=spec, rigid=rigid, residuals=res, n_rigid_removed=n_removed,
+        scale=float(model.scale), pitch=float(model.pitch),
+        resolution=int(model.info.get("resolution", int(model.dims.max()))), element=element,
+        material=_material_record(model), fixed=_fix_record(fix, fix_vertices, len(fixed)), source=source,
+        source_sha256=sha, n_cubes=model.n_cubes, n_dofs=model.n_dofs, eigen=info, timings=dict(timings),
+        lattice=model if keep_lattice else None, node_modes=node_modes if keep_lattice else None)
+
+
+def modal(model: Any, *, n_modes: int | None = None, max_frequency: float | None = None, mesh: Any = None,
+          resolution: int | str | None = None, tolerance: float = DEFAULT_RESOLUTION_TOLERANCE,
+          resolutions=None, fix=None, fix_vertices=None, element: str = DEFAULT_ELEMENT, lumped: bool = False,
+          damping_ratio=None, rayleigh=None, keep_rigid: bool = False, keep_lattice: bool = False,
+          method: str = "auto", backend: str = "auto", max_modes: int = 200, max_memory: float | None = None,
+          voxelize_options: dict | None = None, progress: bool = False) -> ModalBasis:
+    """Vibration modes of a model, baked onto its source mesh.
+
+    Parameters
+    ----------
+    model : CubeModel or mesh-like
+        A lattice, or anything :func:`sc_fem.load_mesh` accepts (then voxelized with
+        ``resolution`` and ``voxelize_options``).
+    n_modes : int, optional
+        Number of (elastic) modes. Default :data:`DEFAULT_N_MODES` unless ``max_frequency`` is given.
+    max_frequency : float, optional
+        Keep all modes below this frequency, Hz (at most ``n_modes`` when both are given, at most
+        ``max_modes`` in any case).
+    mesh : mesh-like, optional
+        Source mesh to bake onto when ``model`` is a :class:`CubeModel`; without it the modes are
+        given at the lattice nodes (``vertices = model.nodes``, no faces).
+    resolution : int or "auto", optional
+        Grid for a mesh-like ``model`` (cubes along the longest axis; default 32). ``"auto"``:
+        the coarsest of ``resolutions`` whose first ``n_modes`` frequencies (or those below
+        ``max_frequency``) agree with the next finer grid within ``tolerance``.
+    tolerance : float
+        Relative frequency tolerance of ``resolution="auto"``.
+    resolutions : sequence of int, optional
+        Grids tried by ``"auto"`` (default :data:`AUTO_RESOLUTIONS`).
+    fix : str, FixSpec, callable or list, optional
+        Fixed nodes (:func:`sc_fem.boundary.fixed_nodes`), e.g. ``"z<min+0.01"``.
+    fix_vertices : array_like of int, optional
+        Source-mesh vertex indices whose cubes are fixed (needs a mesh).
+    element : {"q1i", "q1", "q1sri"}
+        Element type.
+    lumped : bool
+        Lumped instead of consistent mass.
+    damping_ratio : float or array_like (k,), optional
+        Modal damping ratio(s); default :data:`DEFAULT_DAMPING_RATIO`.
+    rayleigh : (alpha, beta), optional
+        Rayleigh damping ``C = alpha M + beta K`` instead of ``damping_ratio``.
+    keep_rigid : bool
+        Keep rigid-body modes (flagged in ``rigid``) instead of removing them.
+    keep_lattice : bool
+        Keep the lattice and the node modes in the result.
+    method : {"auto", "shift-invert", "lobpcg"}
+        Eigensolver (see :mod:`sc_fem.eigen`); ``"auto"`` decides from a memory estimate.
+    backend : {"auto", "cholmod", "cholespy", "splu"}
+        Factorization backend for shift-invert.
+    max_modes : int
+        Upper limit on the modes computed for ``max_frequency``.
+    max_memory : float, optional
+        Memory budget in bytes for the automatic solver choice.
+    voxelize_options : dict, optional
+        Keyword arguments for :func:`sc_fem.voxelize` (``scale``, ``youngs``, ``fill``, ...).
+    progress : bool
+        Print stage messages to stderr.
+
+    Returns
+    -------
+    ModalBasis
+
+    Raises
+    ------
+    InputError
+        Bad arguments (e.g. ``resolution="auto"`` with a :class:`CubeModel`).
+    SolverError
+        The eigensolver failed or the problem does not fit in memory.
+    """
+    from .mesh import load_mesh
+    from .voxelize import voxelize
+
+    element = check_element(element)
+    if n_modes is not None:
+        if isinstance(n_modes, bool) or not isinstance(n_modes, (int, np.integer)) or n_modes < 1:
+            raise InputError(f"n_modes must be a positive integer, got {n_modes!r}")
+        n_modes = int(n_modes)
+    if max_frequency is not None:
+        max_frequency = float(max_frequency)
+        if not (np.isfinite(max_frequency) and max_frequency > 0):
+            raise InputError(f"max_frequency must be > 0 Hz, got {max_frequency!r}")
+    if isinstance(max_modes, bool) or not isinstance(max_modes, (int, np.integer)) or max_modes < 1:
+        raise InputError(f"max_modes must be a positive integer, got {max_modes!r}")
+    if damping_ratio is not None and rayleigh is not None:
+        raise InputError("give damping_ratio or rayleigh, not both")
+    vopts = dict(voxelize_options or {})
+    kw = dict(n_modes=n_modes, max_frequency=max_frequency, fix=fix, fix_vertices=fix_vertices, element=element,
+              lumped=lumped, damping_ratio=damping_ratio, rayleigh=rayleigh, keep_rigid=keep_rigid,
+              keep_lattice=keep_lattice, method=method, backend=backend, max_modes=int(max_modes),
+              max_memory=max_memory, progress=progress)
+    if isinstance(model, CubeModel):
+        if resolution is not None:
+            raise InputError("resolution= applies to a mesh; a CubeModel already has its grid "
+                             "(pass the mesh as model= for resolution='auto')")
+        if vopts:
+            raise InputError("voxelize_options= applies to a mesh, not to a CubeModel")
+        src_mesh = None if mesh is None else load_mesh(mesh)
+        return _modal_one(model, src_mesh, timings={}, **kw)
+    if mesh is not None:
+        raise InputError("mesh= is only used with a CubeModel; pass the mesh as model=")
+    t0 = time.perf_counter()
+    src_mesh = load_mesh(model)
+    t_load = time.perf_counter() - t0
+    if isinstance(resolution, str) and resolution.strip().lower() == "auto":
+        return _modal_auto(src_mesh, tolerance=tolerance, resolutions=resolutions, vopts=vopts,
+                           t_load=t_load, kw=kw)
+    if isinstance(resolution, str):
+        try:
+            resolution = int(resolution)
+        except ValueError:
+            raise InputError(f"resolution must be an integer or 'auto', got {resolution!r}") from None
+    timings = {"load": t_load}
+    t0 = time.perf_counter()
+    lattice = voxelize(src_mesh, resolution=resolution, **vopts)
+    timings["voxelize"] = time.perf_counter() - t0
+    _log(f"  voxelized: {lattice.n_cubes} cubes, {lattice.n_dofs} DOFs", progress)
+    return _modal_one(lattice, src_mesh, timings=timings, **kw)
+
+
+def _modal_auto(mesh, *, tolerance, resolutions, vopts, t_load, kw) -> ModalBasis:
+    from dataclasses import replace
+
+    from .voxelize import voxelize
+
+    tol = float(tolerance)
+    if not (np.isfinite(tol) and tol > 0):
+        raise InputError(f"tolerance must be > 0, got {tolerance!r}")
+    if "pitch" in vopts and vopts["pitch"] is not None:
+        raise InputError("resolution='auto' chooses the grid; do not pass pitch=")
+    vopts = {k: v for k, v in vopts.items() if k != "pitch"}
+    grids = sorted({int(r) for r in (AUTO_RESOLUTIONS if resolutions is None else resolutions)})
+    if len(grids) < 2 or grids[0] < 1:
+        raise InputError(f"resolution='auto' needs at least two positive resolutions, got {grids}")
+    progress = kw["progress"]
+    table: list[dict] = []
+    bases: list[ModalBasis] = []
+    chosen = None
+    for i, r in enumerate(grids):                                 # loop over grids (a handful)
+        t0 = time.perf_counter()
+        timings = {"load": t_load}
+        lattice = voxelize(mesh, resolution=r, **vopts)
+        timings["voxelize"] = time.perf_counter() - t0
+        _log(f"[auto] resolution {r}: {lattice.n_cubes} cubes, {lattice.n_dofs} DOFs", progress)
+        b = _modal_one(lattice, mesh, timings=timings, **kw)
+        el = b.frequencies[~b.rigid]
+        table.append({"resolution": r, "cubes": lattice.n_cubes, "dofs": lattice.n_dofs,
+                      "seconds": time.perf_counter() - t0, "frequencies": el.tolist(),
+                      "max_rel_change": None, "chosen": False})
+        bases.append(b)
+        if i > 0:
+            prev = np.asarray(table[i - 1]["frequencies"])
+            kk = min(len(prev), len(el))
+            if kw["n_modes"] is not None:
+                kk = min(kk, kw["n_modes"])
+            change = float(np.max(np.abs(prev[:kk] - el[:kk]) / np.maximum(el[:kk], 1e-300))) if kk else np.inf
+            table[i - 1]["max_rel_change"] = change
+            if change <= tol:
+                chosen = i - 1
+                break
+    converged = chosen is not None
+    if chosen is None:
+        chosen = len(bases) - 1
+    table[chosen]["chosen"] = True
+    for row in table:
+        row["converged"] = converged
+    b = bases[chosen]
+    return replace(b, resolution_table=table,
+                   eigen={**b.eigen, "auto_tolerance": tol, "auto_converged": converged})
+
+
+def format_resolution_table(table: list[dict], n_show: int = 4) -> str:
+    """The ``resolution="auto"`` table as text (one row per grid)."""
+    lines = [f"  {'res':>4} {'cubes':>8} {'DOFs':>9} {'time [s]':>9}  {'first frequencies [Hz]':<40} "
+             f"{'max change':>10}"]
+    for r in table:
+        f = ", ".join(f"{x:.4g}" for x in r["frequencies"][:n_show])
+        ch = "" if r["max_rel_change"] is None else f"{100 * r['max_rel_change']:.2f} %"
+        mark = "  <- chosen" if r["chosen"] else ""
+        lines.append(f"  {r['resolution']:>4} {r['cubes']:>8,} {r['dofs']:>9,} {r['seconds']:>9.2f}  {f:<40} "
+                     f"{ch:>10}{mark}")
+    if table and not table[0].get("converged", True):
+        lines.append("  (not converged within the tolerance: the finest grid tried is used)")
+    return "\n".join(lines)

@@ -1,0 +1,77 @@
+"""CLI: precompute-modes (single and batch), play, modes-sheet, in-process."""
+
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+
+from sc_fem._cli.main import main
+from sc_fem.errors import RenderError
+from sc_fem.modefile import load_modes
+
+
+def _render_ok():
+    from sc_fem.render import ensure_rendering
+
+    try:
+        ensure_rendering()
+    except RenderError as exc:
+        pytest.skip(f"no off-screen rendering here: {exc}")
+
+
+def test_chair_precompute_play_and_sheet(tmp_path, capsys):
+    out = tmp_path / "chair.npz"
+    assert main(["precompute-modes", "builtin:chair", "-o", str(out), "-r", "16", "--fix", "default",
+                 "--modes", "4", "--damping", "0.03", "-q"]) == 0
+    b = load_modes(out)
+    assert b.n_modes == 4 and np.allclose(b.damping, 0.03) and b.fixed["specs"] == ["z<min+0.01"]
+    assert main(["precompute-modes", "builtin:chair", "-o", str(out), "-r", "12", "--fix", "default",
+                 "--max-frequency", "60"]) == 0
+    text = capsys.readouterr().out
+    assert "eigensolver" in text and "cubes / DOFs" in text and "f [Hz]" in text
+    assert np.all(load_modes(out).frequencies < 60)
+    _render_ok()
+    gif = tmp_path / "play.gif"
+    assert main(["play", str(out), "--impulse", "5", "1", "0", "0", "--duration", "0.4", "--fps", "10",
+                 "-o", str(gif), "-q"]) == 0
+    import imageio.v2 as imageio
+
+    assert len(imageio.mimread(gif)) == 5
+    sheet = tmp_path / "sheet.png"
+    assert main(["modes-sheet", str(out), "-o", str(sheet), "-n", "2", "-q"]) == 0
+    img = imageio.imread(sheet)
+    assert img.ndim == 3 and img.shape[1] > img.shape[0]
+
+
+def test_bridge_modes_and_playback_frames(tmp_path):
+    out = tmp_path / "bridge.npz"
+    assert main(["precompute-modes", "builtin:bridge", "-o", str(out), "-r", "24", "--fix", "default",
+                 "-k", "3", "-q"]) == 0
+    assert load_modes(out).n_modes == 3
+    _render_ok()
+    frames = tmp_path / "frames"
+    assert main(["play", str(out), "--mode", "1", "--duration", "0.2", "--fps", "10", "-o", str(frames), "-q"]) == 0
+    assert len(list(frames.glob("frame_*.png"))) == 3
+
+
+def test_batch_via_cli(tmp_path):
+    bad = tmp_path / "bad.obj"
+    bad.write_text("not a mesh at all")
+    outdir = tmp_path / "outdir"
+    rc = main(["precompute-modes", "builtin:beam", str(bad), "-o", f"{outdir}/", "-r", "10", "-k", "2",
+               "--fix", "x<min+0.01", "--workers", "1", "-q"])
+    assert rc == 1                                    # one mesh failed
+    with open(outdir / "summary.csv", newline="") as fh:
+        rows = {r["mesh"]: r for r in csv.DictReader(fh)}
+    assert rows["builtin:beam"]["status"] == "ok" and rows[str(bad)]["status"] == "error"
+    assert (outdir / "beam.modes.npz").is_file()
+
+
+def test_bad_input_is_a_clean_error(tmp_path, capsys):
+    assert main(["precompute-modes", "builtin:chair", "-o", str(tmp_path / "x.txt")]) == 2
+    assert main(["play", str(tmp_path / "missing.npz"), "-o", str(tmp_path / "a.gif")]) == 2
+    assert "not found" in capsys.readouterr().err
+    assert main(["precompute-modes", "builtin:chair", "-o", str(tmp_path / "c.npz"), "-r", "12",
+                 "--fix", "z<-5"]) == 2

@@ -1,0 +1,91 @@
+"""``sc-fem simulate``: outputs, summary, blow-up handling (in-process)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sc_fem._cli.main import main
+from sc_fem.animfile import load_animation
+
+BEAM = ["builtin:beam", "--resolution", "10", "--fix", "default", "--no-progress"]
+
+
+def test_npz_animation_with_gravity_and_impulse(tmp_path, capsys):
+    from sc_fem.mesh import load_mesh
+
+    tip_vertex = int(np.argmax(load_mesh("builtin:beam").vertices[:, 0]))
+    out = tmp_path / "beam.npz"
+    rc = main(["simulate", *BEAM, "--gravity", "--impulse", str(tip_vertex), "0", "0", "1.0",
+               "--duration", "0.02", "--dt", "0.001", "--fps", "1000", "-o", str(out)])
+    assert rc == 0
+    text = capsys.readouterr().out
+    for key in ("steps", "time per step", "energy drift", "wrote"):
+        assert key in text
+    a = load_animation(out)
+    assert a.positions.shape == (21, len(a.rest_vertices), 3) and a.positions.dtype == np.float32
+    np.testing.assert_allclose(a.times, np.arange(21) * 1e-3, atol=1e-12)
+    assert a.meta["method"] == "newmark" and a.faces.shape[1] == 3
+    # the beam sags (tip vertices go down) and the energy is reported
+    tip = a.rest_vertices[:, 0] > 0.99
+    assert np.all(np.isfinite(a.energy)) and a.energy[0] > 0      # the impulse's kinetic energy
+    assert (a.positions[1:, tip, 2] - a.rest_vertices[tip, 2]).max() > 0   # kicked upward
+
+
+def test_central_blow_up_writes_nothing(tmp_path, capsys):
+    out = tmp_path / "bad.npz"
+    rc = main(["simulate", *BEAM, "--gravity", "--method", "central", "--duration", "0.01", "--dt", "1e-4",
+               "-o", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert "blew up at step" in err and "dt_crit" in err
+    assert not out.exists() and not list(tmp_path.iterdir())
+
+
+def test_central_below_limit_and_xdmf(tmp_path):
+    import meshio
+
+    out = tmp_path / "beam.xdmf"
+    rc = main(["simulate", *BEAM, "--gravity", "--method", "central", "--duration", "0.002", "--dt", "2e-6",
+               "--fps", "5000", "-o", str(out), "--quiet"])
+    assert rc == 0 and out.exists()
+    with meshio.xdmf.TimeSeriesReader(str(out)) as r:
+        points, cells = r.read_points_cells()
+        assert r.num_steps == 11
+        t, pd, _ = r.read_data(r.num_steps - 1)
+    assert t == pytest.approx(0.002)
+    assert pd["displacement"].shape == points.shape and pd["displacement"][:, 2].min() < 0
+
+
+def test_ground_contact_and_corotational(tmp_path):
+    out = tmp_path / "drop.npz"
+    rc = main(["simulate", "builtin:beam", "--resolution", "10", "--youngs", "1e6", "--gravity", "--ground", "-0.002",
+               "--method", "corotational", "--duration", "0.03", "--dt", "5e-4", "--rayleigh", "0", "1e-4",
+               "--no-progress", "--quiet", "-o", str(out)])
+    assert rc == 0
+    a = load_animation(out)
+    assert a.positions[..., 2].min() >= -0.002 - 1e-6 * 0.1       # tolerance 1e-6 pitch
+    assert a.positions[-1, :, 2].min() < -0.0019                    # it fell onto the ground
+
+
+def test_bad_arguments(tmp_path, capsys):
+    assert main(["simulate", *BEAM, "--duration", "1", "--dt", "0.1", "-o", str(tmp_path / "x.txt")]) == 2
+    assert main(["simulate", *BEAM, "--duration", "1", "--dt", "-0.1", "-o", str(tmp_path / "x.npz")]) == 2
+    assert main(["simulate", *BEAM, "--duration", "0.01", "--dt", "0.001", "--impulse", "99999", "0", "0", "1",
+                 "-o", str(tmp_path / "x.npz")]) == 2
+    assert "--impulse VERTEX" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
+
+
+def test_gif_output(tmp_path):
+    from sc_fem.errors import RenderError
+    from sc_fem.render import ensure_rendering
+
+    try:
+        ensure_rendering()
+    except RenderError as exc:
+        pytest.skip(f"no off-screen rendering here: {exc}")
+    out = tmp_path / "beam.gif"
+    rc = main(["simulate", *BEAM, "--gravity", "--duration", "0.01", "--dt", "0.001", "--fps", "500",
+               "--magnify", "100", "--quiet", "-o", str(out)])
+    assert rc == 0 and out.stat().st_size > 1000

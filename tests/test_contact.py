@@ -1,0 +1,83 @@
+"""Contact of source-mesh vertices with the ground, a sphere and a box: no vertex ends a step deeper
+than the stated tolerance."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from sc_fem.errors import InputError
+from sc_fem.integrators import record
+from sc_fem.integrators.contact import TOL_FRACTION, Box, Contact, Ground, Sphere, obstacles_from
+from sc_fem.integrators.loads import Gravity, LoadSet
+from sc_fem.integrators.newmark import Newmark
+from sc_fem.voxelize import voxelize
+
+
+def block(z0=0.05):
+    mesh = trimesh.creation.box(extents=[0.4, 0.2, 0.1]).subdivide()
+    mesh.apply_translation([0.0, 0.0, 0.05 + z0])
+    model = voxelize(mesh, resolution=8, youngs=1e6, poisson=0.3, density=500.0, fill="solid")
+    return mesh, model
+
+
+def test_obstacle_depths():
+    p = np.array([[0.0, 0.0, -0.1], [0.0, 0.0, 0.3]])
+    d, n = Ground(0.0).depth(p)
+    np.testing.assert_allclose(d, [0.1, -0.3])
+    np.testing.assert_allclose(n, [[0, 0, 1], [0, 0, 1]])
+    d, n = Sphere((0, 0, 0), 0.2).depth(p)
+    np.testing.assert_allclose(d, [0.1, -0.1])
+    np.testing.assert_allclose(n, [[0, 0, -1], [0, 0, 1]])
+    d, n = Box((-1, -1, -1), (1, 1, 0.0)).depth(p)
+    assert d[0] == pytest.approx(0.1) and d[1] < 0
+    np.testing.assert_allclose(n[0], [0, 0, 1])
+    with pytest.raises(InputError):
+        obstacles_from(box=[0, 0, 0, -1, 1, 1])
+
+
+def test_single_projection_removes_ground_penetration(rng):
+    mesh, model = block()
+    c = Contact(model, mesh.vertices, [Ground(0.08)])
+    u = 1e-3 * rng.standard_normal((model.n_nodes, 3))
+    d0, _ = c.depths(u)
+    assert d0.max() > 10 * c.tol
+    u2, v2, info = c.project(u, np.zeros_like(u))
+    assert info.passes == 1 and info.n_active == int((d0 > 0).sum())
+    d1, _ = c.depths(u2)
+    assert d1.max() <= c.tol
+    assert c.tol == pytest.approx(TOL_FRACTION * model.pitch)
+    # only nodes of cubes carrying penetrating vertices moved, and only upward
+    du = u2 - u
+    assert np.all(du[:, 2] >= 0) and np.allclose(du[:, :2], 0)
+
+
+@pytest.mark.parametrize("obstacle", [Ground(0.0), Sphere((0.0, 0.0, -0.45), 0.5), Box((-0.1, -0.5, -1), (0.1, 0.5, 0.0))])
+def test_dropped_block_never_ends_a_step_below_the_tolerance(obstacle):
+    mesh, model = block(z0=0.05)
+    c = Contact(model, mesh.vertices, [obstacle])
+    ld = LoadSet(model, [Gravity()])
+    # dt below the explicit limit of the block (~0.9 ms): with much larger steps the position
+    # projection can feed energy into the stiff modes of an implicit scheme (see contact.py)
+    integ = Newmark(model, 5e-4, loads=ld, contact=c, rayleigh=(0.0, 1e-3))
+    rec = record(integ, 400, W=c.W.tocsr(), rest_points=mesh.vertices, every=2)
+    # it fell 5 cm (free fall takes 0.1 s) and touched
+    assert rec.points[:, :, 2].min() < 0.05 + 1e-3
+    assert np.isfinite(rec.max_contact_depth)
+    assert rec.max_contact_depth <= c.tol
+    d = np.array([obstacle.depth(p)[0].max() for p in rec.points])
+    assert d.max() <= c.tol
+    # inelastic contact does not create energy: the total (0 at the start) never rises above 0
+    mgh = model.total_mass * 9.81 * 0.05
+    assert rec.energy.max() <= 1e-3 * mgh
+    assert rec.energy[-1] < -0.005 * mgh               # the impact dissipated some energy
+
+
+def test_block_rests_on_ground_without_sinking():
+    mesh, model = block(z0=0.0)
+    c = Contact(model, mesh.vertices, [Ground(0.0)])
+    integ = Newmark(model, 5e-4, loads=LoadSet(model, [Gravity()]), contact=c, rayleigh=(0.0, 1e-3))
+    rec = record(integ, 200, W=c.W.tocsr(), rest_points=mesh.vertices)
+    assert rec.points[:, :, 2].min() >= -c.tol
+    assert rec.points[-1, :, 2].min() < 1e-3         # still touching the ground (not bounced off)

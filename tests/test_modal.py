@@ -1,0 +1,200 @@
+"""Modal analysis: rigid modes, beam theory, baking, orthonormality, damping, resolution='auto'."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sc_fem.assemble import Assembler
+from sc_fem.eigen import rigid_body_modes, solve_eigen
+from sc_fem.errors import InputError, SolverError
+from sc_fem.lattice import CubeModel
+from sc_fem.linsolve import available_backends
+from sc_fem.modal import damping_ratios, modal
+
+
+def _free_cube():
+    return CubeModel.box((3, 3, 3), 0.1, youngs=1e6, poisson=0.3, density=1000.0)
+
+
+def _full_modes(basis):
+    """Node modes (k, m, 3) -> full DOF matrix (3m, k)."""
+    k, m, _ = basis.node_modes.shape
+    return basis.node_modes.reshape(k, 3 * m).T
+
+
+def test_free_cube_six_rigid_modes_found_and_removed():
+    b = modal(_free_cube(), n_modes=4, keep_lattice=True)
+    assert b.eigen["n_rigid_found"] == 6 and b.n_rigid_removed == 6
+    assert not b.rigid.any() and np.all(b.frequencies > 0)
+    kept = modal(_free_cube(), n_modes=4, keep_rigid=True, keep_lattice=True)
+    assert kept.rigid.sum() == 6 and np.all(kept.frequencies[kept.rigid] == 0)
+    # the elastic frequencies do not depend on whether rigid modes are kept
+    np.testing.assert_allclose(kept.frequencies[~kept.rigid], b.frequencies, rtol=1e-8)
+    # kept rigid modes span exactly the 6 rigid-body motions
+    R = rigid_body_modes(kept.lattice.nodes_m)
+    Phi = _full_modes(kept)[:, kept.rigid]
+    coef, *_ = np.linalg.lstsq(R, Phi, rcond=None)
+    assert np.linalg.norm(R @ coef - Phi) < 1e-6 * np.linalg.norm(Phi)
+    assert np.linalg.matrix_rank(coef, tol=1e-8) == 6
+
+
+def test_two_free_parts_give_twelve_rigid_modes():
+    a = np.stack(np.meshgrid(*[np.arange(2)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    cells = np.vstack([a, a + [4, 0, 0]])                     # two 2x2x2 blocks, a gap of 2 cubes
+    m = CubeModel.from_cells(cells, origin=(0, 0, 0), pitch=0.1, mass=1.0, youngs=1e6, poisson=0.3,
+                             density=1000.0)
+    b = modal(m, n_modes=3)
+    assert b.eigen["n_rigid_found"] == 12 == b.eigen["n_rigid_expected"] and b.n_rigid_removed == 12
+
+
+def test_cantilever_bending_modes_match_beam_theory():
+    n, t, L = 2, 0.1, 2.0                                      # L / t = 20: slender, shear effects ~0.3 %
+    E, rho = 200e9, 7850.0
+    m = CubeModel.box((int(L / t * n), n, n), t / n, youngs=E, poisson=0.3, density=rho)
+    b = modal(m, n_modes=6, fix="x<min+0")
+    I, A = t**4 / 12.0, t * t
+    beta = np.array([1.875104069, 4.694091133])
+    f_eb = beta**2 / (2 * np.pi) * np.sqrt(E * I / (rho * A * L**4))
+    f = b.frequencies
+    # bending in y and z are degenerate (square section)
+    assert abs(f[1] - f[0]) < 1e-6 * f[0]
+    assert abs(f[0] / f_eb[0] - 1) < 0.02
+    bending2 = f[np.argmin(np.abs(f - f_eb[1]))]
+    assert abs(bending2 / f_eb[1] - 1) < 0.04
+    assert np.all(b.residuals < 1e-6)
+
+
+def test_baked_modes_equal_lattice_modes_at_nodes_and_interpolate_trilinearly(rng):
+    m = CubeModel.box((4, 2, 2), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
+    inner = m.origin + rng.uniform(0.01, 0.99, (5, 3)) * (m.dims * m.pitch)
+    pts = np.vstack([m.nodes, inner])
+    b = modal(m, mesh=(pts, np.zeros((0, 3), int)), n_modes=5, fix="x<min+0", keep_lattice=True)
+    nm = m.n_nodes
+    np.testing.assert_allclose(b.modes[:, :nm], b.node_modes, atol=1e-12 * np.abs(b.node_modes).max())
+    # slow oracle: trilinear interpolation of the node modes, point by point
+    index = {tuple(ijk): i for i, ijk in enumerate(m.node_index)}
+    for p_i, p in enumerate(inner):
+        x = (p - m.origin) / m.pitch
+        c = np.floor(x).astype(int)
+        xi = x - c
+        val = np.zeros((b.n_modes, 3))
+        for dx in (0, 1):
+            for dy in (0, 1):
+                for dz in (0, 1):
+                    w = (xi[0] if dx else 1 - xi[0]) * (xi[1] if dy else 1 - xi[1]) * (xi[2] if dz else 1 - xi[2])
+                    val += w * b.node_modes[:, index[(c[0] + dx, c[1] + dy, c[2] + dz)]]
+        np.testing.assert_allclose(b.modes[:, nm + p_i], val, atol=1e-12 * np.abs(val).max())
+
+
+@pytest.mark.parametrize("fix", [None, "x<min+0"])
+def test_modes_are_mass_orthonormal_and_diagonalize_K(fix):
+    m = CubeModel.box((4, 3, 2), 0.05, youngs=1e7, poisson=0.35, density=900.0)
+    b = modal(m, n_modes=8, fix=fix, keep_lattice=True)
+    asm = Assembler(m, "q1i")
+    K, M = asm.stiffness(), asm.mass()
+    Phi = _full_modes(b)
+    np.testing.assert_allclose(Phi.T @ M @ Phi, np.eye(b.n_modes), atol=1e-9)
+    np.testing.assert_allclose(Phi.T @ K @ Phi, np.diag(b.omegas**2), atol=1e-8 * b.omegas.max() ** 2)
+    assert np.all(np.diff(b.frequencies) >= 0) and np.all(b.residuals < 1e-6)
+
+
+def test_eigensolvers_agree():
+    m = CubeModel.box((6, 3, 3), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
+    asm = Assembler(m, "q1i")
+    K, M = asm.stiffness(), asm.mass()
+    ref = solve_eigen(K, M, 12, method="shift-invert", backend="splu")
+    for backend in available_backends():
+        r = solve_eigen(K, M, 12, method="shift-invert", backend=backend)
+        assert r.backend == backend
+        np.testing.assert_allclose(r.eigenvalues[6:], ref.eigenvalues[6:], rtol=1e-8)
+    lo = solve_eigen(K, M, 12, method="lobpcg", near_null=rigid_body_modes(m.nodes_m))
+    assert lo.method == "lobpcg" and lo.backend == "pyamg"
+    np.testing.assert_allclose(lo.eigenvalues[6:], ref.eigenvalues[6:], rtol=1e-6)
+    assert np.all(np.abs(lo.eigenvalues[:6]) < 1e-8 * ref.eigenvalues[6])
+
+
+def test_auto_method_switches_to_lobpcg_when_the_factor_does_not_fit(monkeypatch):
+    from sc_fem import eigen
+
+    m = CubeModel.box((6, 3, 3), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
+    n, nnz = m.n_dofs, 81 * m.n_dofs
+    budget = 2.0 * eigen.lobpcg_memory_estimate(n, nnz, 12)
+    fits = modal(m, n_modes=3, fix="x<min+0", max_memory=budget)
+    assert eigen.factor_memory_estimate(n, nnz) < budget
+    monkeypatch.setattr(eigen, "FILL_CONSTANT", 1e6)          # pretend the factor is huge
+    assert eigen.factor_memory_estimate(n, nnz) > budget
+    tight = modal(m, n_modes=3, fix="x<min+0", max_memory=budget)
+    with pytest.raises(SolverError, match="does not fit"):
+        modal(m, n_modes=3, fix="x<min+0", max_memory=1000.0)
+    assert fits.eigen["method"] == "shift-invert" and tight.eigen["method"] == "lobpcg"
+    assert "budget" in tight.eigen["reason"]
+    np.testing.assert_allclose(tight.frequencies, fits.frequencies, rtol=1e-6)
+
+
+def test_max_frequency_returns_every_mode_below_it():
+    m = CubeModel.box((8, 2, 2), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
+    many = modal(m, n_modes=30, fix="x<min+0")
+    f = many.frequencies
+    i = 10 + int(np.argmax(np.diff(f[10:20]) > 1e-3 * f[10:19]))     # a gap, not inside a degenerate pair
+    F = float(0.5 * (f[i] + f[i + 1]))
+    sel = modal(m, max_frequency=F, fix="x<min+0")
+    np.testing.assert_allclose(sel.frequencies, f[f < F], rtol=1e-8)
+    assert sel.n_modes == i + 1
+
+
+def test_damping_rayleigh_and_ratio():
+    w = np.array([0.0, 10.0, 100.0])
+    z, spec = damping_ratios(w, rayleigh=(2.0, 1e-3))
+    np.testing.assert_allclose(z, [0.0, 2.0 / 20 + 1e-3 * 10 / 2, 2.0 / 200 + 1e-3 * 100 / 2])
+    assert spec == {"kind": "rayleigh", "alpha": 2.0, "beta": 1e-3}
+    z, spec = damping_ratios(w, damping_ratio=[0.1, 0.2, 0.3])
+    np.testing.assert_allclose(z, [0.0, 0.2, 0.3])
+    b = modal(_free_cube(), n_modes=3, rayleigh=(1.0, 1e-4))
+    np.testing.assert_allclose(b.damping, 1.0 / (2 * b.omegas) + 1e-4 * b.omegas / 2)
+    with pytest.raises(InputError, match="not both"):
+        modal(_free_cube(), damping_ratio=0.1, rayleigh=(1, 1))
+
+
+def test_resolution_auto_picks_the_coarsest_converged_grid():
+    grids = (10, 20, 30, 40)
+    b = modal("builtin:beam", resolution="auto", resolutions=grids, tolerance=1e-3, n_modes=2,
+              fix="x<min+1e-6", voxelize_options={"fill": "solid"})
+    table = b.resolution_table
+    assert [r["resolution"] for r in table] == list(grids[:len(table)])
+    chosen = [i for i, r in enumerate(table) if r["chosen"]]
+    assert len(chosen) == 1 and table[chosen[0]]["resolution"] == b.resolution
+    assert table[0]["converged"] and b.eigen["auto_converged"]
+    for i, r in enumerate(table[:-1]):                 # recompute each change from the table itself
+        a, c = np.asarray(r["frequencies"][:2]), np.asarray(table[i + 1]["frequencies"][:2])
+        assert r["max_rel_change"] == pytest.approx(np.max(np.abs(a - c) / c))
+    i = chosen[0]
+    assert table[i]["max_rel_change"] <= 1e-3 and all(r["max_rel_change"] > 1e-3 for r in table[:i])
+    # a tolerance no grid meets: the finest grid is used and the table says so
+    strict = modal("builtin:beam", resolution="auto", resolutions=(10, 20, 30), tolerance=1e-9, n_modes=2,
+                   fix="x<min+1e-6", voxelize_options={"fill": "solid"})
+    assert strict.resolution == 30 and not strict.eigen["auto_converged"]
+    # the chosen frequencies agree with the Euler-Bernoulli cantilever (1 x 0.1 x 0.1 m steel) within 1 %
+    f_eb = 1.875104069**2 / (2 * np.pi) * np.sqrt(200e9 * 0.1**4 / 12 / (7850 * 0.01 * 1.0))
+    assert abs(b.frequencies[0] / f_eb - 1) < 0.01
+
+
+def test_builtin_chair_feet_fixed_and_bridge_produce_modes():
+    chair = modal("builtin:chair", resolution=16, n_modes=4, fix="z<min+0.01")
+    assert chair.n_modes == 4 and chair.n_rigid_removed == 0 and chair.fixed["n_nodes"] > 0
+    assert chair.modes.shape == (4, len(chair.vertices), 3) and np.all(np.isfinite(chair.modes))
+    assert 1.0 < chair.frequencies[0] < 1000.0 and np.all(chair.residuals < 1e-6)
+    bridge = modal("builtin:bridge", resolution=24, n_modes=4, fix="z<min+0.05")
+    assert bridge.n_modes == 4 and np.all(bridge.residuals < 1e-6) and bridge.frequencies[0] > 0
+
+
+def test_bad_arguments_raise_clear_errors():
+    m = _free_cube()
+    with pytest.raises(InputError, match="n_modes"):
+        modal(m, n_modes=0)
+    with pytest.raises(InputError, match="resolution"):
+        modal(m, resolution="auto")
+    with pytest.raises(InputError, match="max_frequency"):
+        modal(m, max_frequency=-1.0)
+    with pytest.raises(InputError, match="fix_vertices"):
+        modal(m, fix_vertices=[0])

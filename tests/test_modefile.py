@@ -1,0 +1,116 @@
+"""Mode files: round trip, atomic write, and every corruption case raises ModeFileError."""
+
+from __future__ import annotations
+
+import json
+import zipfile
+
+import numpy as np
+import pytest
+
+from sc_fem.errors import ModeFileError
+from sc_fem.lattice import CubeModel
+from sc_fem.modal import modal
+from sc_fem.modefile import MODES_FORMAT_VERSION, load_modes, save_modes
+
+
+@pytest.fixture(scope="module")
+def basis():
+    m = CubeModel.box((4, 2, 2), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
+    return modal(m, n_modes=4, fix="x<min+0", keep_lattice=True, rayleigh=(0.5, 1e-4))
+
+
+@pytest.fixture
+def saved(tmp_path, basis):
+    return save_modes(basis, tmp_path / "m.npz")
+
+
+def _rewrite(src, dst, **changes):
+    with np.load(src, allow_pickle=False) as z:
+        data = {k: z[k] for k in z.files}
+    for k, v in changes.items():
+        if v is None:
+            data.pop(k)
+        else:
+            data[k] = v
+    np.savez(dst, **data)
+    return dst
+
+
+def test_round_trip(saved, basis):
+    b = load_modes(saved)
+    np.testing.assert_array_equal(b.frequencies, basis.frequencies)
+    np.testing.assert_array_equal(b.modes, basis.modes.astype(np.float32))
+    assert b.modes.dtype == np.float32 and b.modes.shape == (4, basis.n_vertices, 3)
+    np.testing.assert_array_equal(b.vertices, basis.vertices)
+    np.testing.assert_array_equal(b.faces, basis.faces)
+    np.testing.assert_array_equal(b.damping, basis.damping)
+    assert b.damping_spec == {"kind": "rayleigh", "alpha": 0.5, "beta": 1e-4}
+    assert b.element == "q1i" and b.pitch == basis.pitch and b.scale == basis.scale
+    assert b.fixed == basis.fixed and b.material == json.loads(json.dumps(basis.material))
+    assert b.n_cubes == basis.n_cubes and b.eigen["method"] == basis.eigen["method"]
+    assert b.lattice is not None and b.lattice.n_nodes == basis.lattice.n_nodes
+    np.testing.assert_allclose(b.node_modes, basis.node_modes, rtol=1e-6, atol=1e-6 * np.abs(basis.node_modes).max())
+
+
+def test_round_trip_of_a_mesh_basis_without_lattice(tmp_path):
+    b = modal("builtin:chair", resolution=12, n_modes=2, fix="z<min+0.01")
+    p = save_modes(b, tmp_path / "chair.npz")
+    r = load_modes(p)
+    assert r.lattice is None and r.source == "builtin:chair" and len(r.source_sha256) == 64
+    np.testing.assert_allclose(r.modes, b.modes, rtol=1e-6, atol=1e-6 * np.abs(b.modes).max())
+    assert not list(tmp_path.glob(".*tmp*"))                 # atomic write leaves no temporary file
+
+
+def test_truncated_file(saved, tmp_path):
+    data = saved.read_bytes()
+    bad = tmp_path / "trunc.npz"
+    bad.write_bytes(data[: len(data) // 2])
+    with pytest.raises(ModeFileError, match="truncated or corrupted"):
+        load_modes(bad)
+
+
+def test_corrupted_bytes(saved, tmp_path):
+    data = bytearray(saved.read_bytes())
+    with zipfile.ZipFile(saved) as z:
+        info = z.getinfo("modes.npy")
+    start = info.header_offset + 30 + len(info.filename) + 10
+    for i in range(start, start + 64):
+        data[i] ^= 0xFF
+    bad = tmp_path / "corrupt.npz"
+    bad.write_bytes(bytes(data))
+    with pytest.raises(ModeFileError):
+        load_modes(bad)
+
+
+def test_foreign_files(saved, tmp_path):
+    other = tmp_path / "other.npz"
+    np.savez(other, a=np.arange(3))
+    with pytest.raises(ModeFileError, match="not an sc_fem mode file"):
+        load_modes(other)
+    text = tmp_path / "text.npz"
+    text.write_text("hello, I am not a zip file")
+    with pytest.raises(ModeFileError, match="not a readable"):
+        load_modes(text)
+    with pytest.raises(ModeFileError, match="not found"):
+        load_modes(tmp_path / "missing.npz")
+
+
+def test_wrong_version(saved, tmp_path):
+    bad = _rewrite(saved, tmp_path / "v.npz", format_version=np.int64(MODES_FORMAT_VERSION + 1))
+    with pytest.raises(ModeFileError, match="format_version"):
+        load_modes(bad)
+
+
+def test_nan_and_shape_errors(saved, tmp_path):
+    with np.load(saved) as z:
+        modes, freqs = z["modes"].copy(), z["frequencies"].copy()
+    modes[1, 0, 0] = np.nan
+    with pytest.raises(ModeFileError, match="non-finite"):
+        load_modes(_rewrite(saved, tmp_path / "nan.npz", modes=modes))
+    with pytest.raises(ModeFileError, match="modes must be"):
+        load_modes(_rewrite(saved, tmp_path / "shape.npz", modes=modes[:, :-1]))
+    with pytest.raises(ModeFileError, match="missing keys"):
+        load_modes(_rewrite(saved, tmp_path / "key.npz", damping=None))
+    with pytest.raises(ModeFileError, match="ascending"):
+        load_modes(_rewrite(saved, tmp_path / "order.npz", frequencies=freqs[::-1].copy()))
