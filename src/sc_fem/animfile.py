@@ -13,7 +13,11 @@ times              (T,) float64     seconds, strictly increasing
 positions          (T, n, 3) f32    vertex positions per frame, model units
 energy             (T,) float64     kinetic + elastic + gravity potential, J (NaN if unknown)
 meta_json          () str           JSON dict: method, dt, material, source, ...
+curves (optional)  (T, C, P, 3) f8  curves on the surface (e.g. the XPBD rope's 24 x 832), model units
 =================  ===============  =====================================================
+
+Further optional arrays may be stored with ``save_animation(..., extra={...})``; readers ignore
+keys they do not know.
 """
 
 from __future__ import annotations
@@ -78,18 +82,30 @@ def _check(faces, rest, times, positions, energy) -> None:
         raise InputError("faces index vertices that do not exist")
 
 
-def save_animation(path, *, faces, rest_vertices, times, positions, energy=None, meta=None) -> Path:
-    """Write an animation ``.npz`` atomically (temp file + rename); returns the path."""
+_RESERVED = {"format_version", "kind", "faces", "rest_vertices", "times", "positions", "energy", "meta_json"}
+
+
+def save_animation(path, *, faces, rest_vertices, times, positions, energy=None, meta=None,
+                   extra: dict | None = None) -> Path:
+    """Write an animation ``.npz`` atomically (temp file + rename); returns the path.
+
+    ``extra`` holds further named arrays (e.g. ``curves`` of shape (T, C, P, 3)).
+    """
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     rest = as_float_array(rest_vertices, "rest_vertices", (-1, 3))
     times = as_float_array(times, "times", (-1,))
     positions = as_float_array(positions, "positions", (-1, -1, 3))
     energy = np.full(times.shape, np.nan) if energy is None else np.asarray(energy, dtype=float)
     _check(faces, rest, times, positions, energy)
+    extra = dict(extra or {})
+    clash = _RESERVED & set(extra)
+    if clash:
+        raise InputError(f"extra arrays may not use the reserved keys {sorted(clash)}")
     return save_npz_atomic(
         path, format_version=np.int64(ANIMATION_FORMAT_VERSION), kind=np.str_(ANIMATION_KIND),
         faces=faces, rest_vertices=rest, times=times, positions=positions.astype(np.float32),
         energy=energy, meta_json=np.str_(json.dumps(meta or {}, default=str)),
+        **{k: np.asarray(v) for k, v in extra.items()},
     )
 
 

@@ -1,0 +1,64 @@
+"""Vertex-animation files: round trip, extra arrays, and every corruption case."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sc_fem.animfile import load_animation, save_animation
+from sc_fem.errors import InputError, ModeFileError
+
+
+def _anim(rng, T=4, n=5):
+    rest = rng.normal(size=(n, 3))
+    return dict(faces=np.array([[0, 1, 2], [2, 3, 4]]), rest_vertices=rest, times=np.arange(T) * 0.1,
+                positions=rest[None] + 0.01 * rng.normal(size=(T, n, 3)), energy=np.ones(T), meta={"method": "x"})
+
+
+def test_round_trip_with_curves(tmp_path, rng):
+    a = _anim(rng)
+    curves = rng.normal(size=(4, 2, 7, 3))
+    p = save_animation(tmp_path / "a.npz", **a, extra={"curves": curves})
+    b = load_animation(p)
+    np.testing.assert_allclose(b.positions, a["positions"], rtol=1e-6)
+    assert b.positions.dtype == np.float32 and b.meta == {"method": "x"} and b.n_frames == 4
+    with np.load(p) as z:
+        np.testing.assert_array_equal(z["curves"], curves)
+
+
+def test_bad_writes(tmp_path, rng):
+    a = _anim(rng)
+    with pytest.raises(InputError, match="reserved"):
+        save_animation(tmp_path / "a.npz", **a, extra={"times": np.zeros(4)})
+    b = dict(a, times=np.array([0.0, 0.2, 0.1, 0.3]))
+    with pytest.raises(InputError, match="increasing"):
+        save_animation(tmp_path / "a.npz", **b)
+    c = dict(a, positions=a["positions"][:, :3])
+    with pytest.raises(InputError, match="shape"):
+        save_animation(tmp_path / "a.npz", **c)
+    assert not list(tmp_path.iterdir())
+
+
+def test_corrupted_truncated_foreign(tmp_path, rng):
+    p = save_animation(tmp_path / "a.npz", **_anim(rng))
+    data = p.read_bytes()
+    (tmp_path / "t.npz").write_bytes(data[: len(data) // 2])
+    with pytest.raises(ModeFileError, match="truncated or corrupted"):
+        load_animation(tmp_path / "t.npz")
+    np.savez(tmp_path / "f.npz", x=np.zeros(3))
+    with pytest.raises(ModeFileError, match="not an sc_fem animation"):
+        load_animation(tmp_path / "f.npz")
+    with pytest.raises(ModeFileError, match="not found"):
+        load_animation(tmp_path / "missing.npz")
+    with np.load(p) as z:
+        d = {k: z[k] for k in z.files}
+    d["format_version"] = np.int64(99)
+    np.savez(tmp_path / "v.npz", **d)
+    with pytest.raises(ModeFileError, match="format_version 99"):
+        load_animation(tmp_path / "v.npz")
+    d["format_version"] = np.int64(1)
+    d["positions"] = d["positions"].copy()
+    d["positions"][0, 0, 0] = np.nan
+    np.savez(tmp_path / "n.npz", **d)
+    with pytest.raises(ModeFileError, match="non-finite"):
+        load_animation(tmp_path / "n.npz")
