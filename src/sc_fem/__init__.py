@@ -38,9 +38,13 @@ _LAZY: dict[str, str] = {
     # XPBD and the cube-rope scene
     "XPBDSolver": ".xpbd", "XPBDState": ".xpbd", "XPBDEnergy": ".xpbd", "simulate_xpbd": ".xpbd",
     "rope_scene": ".rope_scene", "RopeScene": ".rope_scene",
+    # dynamics (loads and contact classes live in sc_fem.integrators)
+    "simulate": ".integrators", "make_integrator": ".integrators",
+    "Newmark": ".integrators.newmark", "Corotational": ".integrators.corotational",
+    "CentralDifference": ".integrators.central", "critical_time_step": ".integrators.central",
 }
 
-_SUBMODULES = ("models", "xpbd", "reconstruct", "render")
+_SUBMODULES = ("models", "xpbd", "reconstruct", "render", "integrators")
 
 # Functions that share their module's name are imported eagerly: otherwise ``import
 # sc_fem.voxelize`` (the submodule) would replace the function attribute with the module.

@@ -94,7 +94,7 @@ def _modal_options(args) -> dict:
             raise InputError(f"--resolution must be an integer or 'auto', got {res!r}") from None
     elif res is not None:
         res = "auto"
-    vopts = dict(scale=args.scale, fill=args.fill, method=args.method, keep=args.keep, youngs=args.youngs,
+    vopts = dict(scale=args.scale, fill=args.fill, method=args.voxel_method, keep=args.keep, youngs=args.youngs,
                  poisson=args.poisson, density=args.density, mass=args.mass)
     if args.pitch is not None:
         vopts["pitch"] = args.pitch

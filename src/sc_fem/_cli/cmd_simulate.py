@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import add_fix_args, add_material_args, add_mesh_arg, model_summary, stage
+from .common import (add_fix_args, add_grid_args, add_material_args, add_mesh_arg, model_summary, stage,
+                     voxelize_from_args)
 
 OUTPUTS = (".npz", ".xdmf", ".mp4", ".gif")
 
@@ -27,7 +28,7 @@ def register(sub) -> None:
                     "'displacement' in model units: apply Warp By Vector), or a rendered .mp4/.gif. "
                     "A run that blows up stops with the time step and dt_crit and writes nothing.")
     add_mesh_arg(p)
-    _add_grid_args(p)
+    add_grid_args(p, method_flags=("--voxel-method",))
     add_material_args(p)
     add_fix_args(p)
     p.add_argument("--duration", type=float, required=True, help="simulated time, s")
@@ -59,31 +60,6 @@ def register(sub) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--quiet", "-q", action="store_true", help="print only errors")
     p.set_defaults(func=run)
-
-
-def _add_grid_args(p) -> None:
-    """The grid options of :func:`sc_fem._cli.common.add_grid_args`, except that the voxelization
-    ``--method`` is spelled ``--voxel-method`` here (``--method`` picks the time integrator)."""
-    g = p.add_mutually_exclusive_group()
-    g.add_argument("--resolution", "-r", type=int, default=None,
-                   help="cubes along the longest bounding-box axis (default 32)")
-    g.add_argument("--pitch", type=float, default=None, help="cube edge in model units")
-    p.add_argument("--scale", type=float, default=1.0,
-                   help="metres per model unit (a model in millimetres: 0.001); default 1")
-    p.add_argument("--fill", choices=("surface", "solid"), default="surface",
-                   help="surface shell (default) or flood-filled solid")
-    p.add_argument("--voxel-method", choices=("sample", "exact"), default="sample",
-                   help="voxelization: point sampling (default) or exact triangle-cube overlap")
-    p.add_argument("--keep", choices=("largest", "all"), default="largest",
-                   help="keep the largest connected component (default) or all")
-
-
-def _voxelize(args, mesh):
-    from ..voxelize import voxelize
-
-    return voxelize(mesh, resolution=args.resolution, pitch=args.pitch, scale=args.scale, fill=args.fill,
-                    method=args.voxel_method, keep=args.keep, youngs=args.youngs, poisson=args.poisson,
-                    density=args.density, mass=args.mass)
 
 
 def _impulse_nodes(args, model, W, n_vertices: int) -> np.ndarray | None:
@@ -189,7 +165,7 @@ def run(args) -> int:
     with stage("load", timings, q):
         mesh = load_mesh(args.mesh)
     with stage("voxelize", timings, q):
-        model = _voxelize(args, mesh)
+        model = voxelize_from_args(args, mesh=mesh)
         W = embed(model, np.asarray(mesh.vertices, dtype=float))
     with stage("setup", timings, q):
         integ = build(args, mesh, model, W)
@@ -226,15 +202,15 @@ def run(args) -> int:
 def demo_dynamics(out_dir, *, resolution: int = 16, quiet: bool = True) -> list[Path]:
     """Demo step: the built-in bridge under a lateral gust and gravity, settling on its supports.
 
-    Writes ``bridge_gust.npz`` (true displacements) and ``bridge_gust.gif`` (displacements x200)
+    Writes ``bridge_gust.npz`` (true displacements) and ``bridge_gust.gif`` (displacements x2000, 10x slow motion)
     under ``out_dir`` and returns their paths (about 10--20 s)."""
     from .main import main
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     common = ["builtin:bridge", "--resolution", str(resolution), "--fix", "default", "--gravity",
-              "--gust", "0", "2e6", "0", "0.3", "--duration", "2.0", "--dt", "0.005", "--rayleigh", "1.0", "2e-4",
-              "--fps", "25", "--no-progress"] + (["--quiet"] if quiet else [])
+              "--gust", "0", "2e7", "0", "0.02", "--duration", "0.5", "--dt", "0.001", "--rayleigh", "1.0", "2e-4",
+              "--fps", "250", "--no-progress"] + (["--quiet"] if quiet else [])
     npz = out_dir / "bridge_gust.npz"
     rc = main(["simulate", *common, "-o", str(npz)])
     if rc != 0:
@@ -246,10 +222,10 @@ def demo_dynamics(out_dir, *, resolution: int = 16, quiet: bool = True) -> list[
     from ..render import render_animation
 
     anim = load_animation(npz)
-    frames = anim.rest_vertices[None] + 200.0 * (anim.positions - anim.rest_vertices[None])
+    frames = anim.rest_vertices[None] + 2000.0 * (anim.positions - anim.rest_vertices[None])
     try:
         written.append(render_animation(frames, anim.faces, out_dir / "bridge_gust.gif", fps=25,
-                                        title="bridge: gust + gravity, Newmark (displacements x200)",
+                                        title="bridge: gust + gravity, Newmark (x2000, 10x slow motion)",
                                         window_size=(640, 400)))
     except RenderError as exc:
         print(f"demo_dynamics: no video ({exc})", file=sys.stderr)

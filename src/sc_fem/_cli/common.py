@@ -14,7 +14,10 @@ def add_mesh_arg(p: argparse.ArgumentParser) -> None:
                         "(chair, bridge, rope, beam)")
 
 
-def add_grid_args(p: argparse.ArgumentParser, *, auto: bool = False) -> None:
+def add_grid_args(p: argparse.ArgumentParser, *, auto: bool = False,
+                  method_flags: tuple[str, ...] = ("--method", "--voxel-method")) -> None:
+    """Grid options. ``method_flags`` spells the voxelization-method option (commands where
+    ``--method`` means something else, like ``simulate``, pass ``("--voxel-method",)``)."""
     g = p.add_mutually_exclusive_group()
     g.add_argument("--resolution", "-r", default=None,
                    type=(str if auto else int),
@@ -25,8 +28,8 @@ def add_grid_args(p: argparse.ArgumentParser, *, auto: bool = False) -> None:
                    help="metres per model unit (a model in millimetres: 0.001); default 1")
     p.add_argument("--fill", choices=("surface", "solid"), default="surface",
                    help="surface shell (default) or flood-filled solid")
-    p.add_argument("--method", choices=("sample", "exact"), default="sample",
-                   help="point sampling (default) or exact triangle-cube overlap")
+    p.add_argument(*method_flags, dest="voxel_method", choices=("sample", "exact"), default="sample",
+                   help="voxelization: point sampling (default) or exact triangle-cube overlap")
     p.add_argument("--keep", choices=("largest", "all"), default="largest",
                    help="keep the largest connected component (default) or all")
 
@@ -44,7 +47,7 @@ def voxelize_from_args(args, mesh=None, resolution=None):
 
     res = args.resolution if resolution is None else resolution
     return voxelize(mesh if mesh is not None else args.mesh, resolution=None if res is None else int(res),
-                    pitch=args.pitch, scale=args.scale, fill=args.fill, method=args.method, keep=args.keep,
+                    pitch=args.pitch, scale=args.scale, fill=args.fill, method=args.voxel_method, keep=args.keep,
                     youngs=args.youngs, poisson=args.poisson, density=args.density, mass=args.mass)
 
 
