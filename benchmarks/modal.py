@@ -184,9 +184,9 @@ def main(argv=None) -> int:
         sizes, cases = [2, 4, 6], [("chair", ["z<min+0.01"], 24), ("bridge", ["z<min+0.05"], 32)]
         limits = {}
     else:
-        sizes = [2, 4, 6, 8, 10, 12, 16]
-        cases = [("chair", ["z<min+0.01"], r) for r in (24, 48, 96)] + \
-                [("bridge", ["z<min+0.05"], r) for r in (32, 64, 128)]
+        sizes = [2, 4, 6, 8, 10, 12]          # n = 16 (the 139k-DOF case) is left out to stay under ~5 min
+        cases = [("chair", ["z<min+0.01"], r) for r in (24, 48, 64)] + \
+                [("bridge", ["z<min+0.05"], r) for r in (32, 64)]
         limits = {"si-splu": 40_000, "si-cholespy": 140_000}
     print("== eigensolvers on cantilevers (6 modes)", file=sys.stderr)
     rows, res = bench_cantilevers(sizes, k, limits)
