@@ -21,7 +21,7 @@ def test_every_public_name_resolves():
 def test_functions_are_not_shadowed_by_their_modules():
     import importlib
 
-    for name in ("voxelize", "embed", "assemble"):
+    for name in ("voxelize", "embed", "assemble", "modal"):
         importlib.import_module(f"sc_fem.{name}")
         assert callable(getattr(sc_fem, name)), name
 

@@ -24,9 +24,9 @@ _LAZY: dict[str, str] = {
     "ModeFileError": ".errors", "RenderError": ".errors",
     # foundation
     "load_mesh": ".mesh", "Material": ".material", "lame": ".material",
-    "CubeModel": ".lattice", "voxelize": ".voxelize", "embed": ".embed", "Embedding": ".embed",
+    "CubeModel": ".lattice", "Embedding": ".embed",
     # FEM core
-    "assemble": ".assemble", "Assembler": ".assemble",
+    "Assembler": ".assemble",
     "FixSpec": ".boundary", "parse_fix": ".boundary", "fixed_nodes": ".boundary",
     "fixed_dofs": ".boundary", "read_vertex_file": ".boundary",
     "factorize": ".linsolve", "Factorization": ".linsolve",
@@ -38,6 +38,10 @@ _LAZY: dict[str, str] = {
     # XPBD and the cube-rope scene
     "XPBDSolver": ".xpbd", "XPBDState": ".xpbd", "XPBDEnergy": ".xpbd", "simulate_xpbd": ".xpbd",
     "rope_scene": ".rope_scene", "RopeScene": ".rope_scene",
+    # modal analysis
+    "ModalBasis": ".modal", "save_modes": ".modefile", "load_modes": ".modefile",
+    "ModalPlayer": ".player", "run_batch": ".batch", "BatchResult": ".batch",
+    "solve_eigen": ".eigen", "EigenResult": ".eigen",
     # dynamics (loads and contact classes live in sc_fem.integrators)
     "simulate": ".integrators", "make_integrator": ".integrators",
     "Newmark": ".integrators.newmark", "Corotational": ".integrators.corotational",
@@ -50,9 +54,10 @@ _SUBMODULES = ("models", "xpbd", "reconstruct", "render", "integrators")
 # sc_fem.voxelize`` (the submodule) would replace the function attribute with the module.
 from .assemble import assemble  # noqa: E402
 from .embed import embed  # noqa: E402
+from .modal import modal  # noqa: E402
 from .voxelize import voxelize  # noqa: E402
 
-__all__ = sorted([*_LAZY, *_SUBMODULES, "__version__"])
+__all__ = sorted([*_LAZY, *_SUBMODULES, "assemble", "embed", "modal", "voxelize", "__version__"])
 
 
 def __getattr__(name: str) -> Any:

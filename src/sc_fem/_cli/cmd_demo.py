@@ -62,9 +62,11 @@ def run(args) -> int:
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
+    from .cmd_modes import demo_modal
     from .cmd_simulate import demo_dynamics
 
     steps = [("voxelize chair and bridge", lambda: _voxel_pictures(out, args.resolution)),
+             ("modal chair (feet fixed)", lambda: demo_modal(out)),
              ("bridge dynamics (gust)", lambda: demo_dynamics(out)),
              ("XPBD cube-rope and PDE reconstruction", lambda: _rope_reconstruction(out))]
     written: list[Path] = []
