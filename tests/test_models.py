@@ -59,3 +59,9 @@ def test_rope_is_a_chain_of_overlapping_cubes():
 def test_unknown_model():
     with pytest.raises(sc_fem.InputError, match="choose one of"):
         models.load("teapot")
+
+
+def test_expand_default_fix():
+    assert models.expand_fix(["default", "x<0.1"], "builtin:chair") == ["z<min+0.01", "x<0.1"]
+    with pytest.raises(sc_fem.BoundaryConditionError, match="builtin"):
+        models.expand_fix(["default"], "my.obj")

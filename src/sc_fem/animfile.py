@@ -23,13 +23,13 @@ keys they do not know.
 from __future__ import annotations
 
 import json
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from ._atomic import save_npz_atomic
+from ._npz import read_versioned_npz
 from ._validate import as_float_array
 from .errors import InputError, ModeFileError
 
@@ -118,19 +118,8 @@ def load_animation(path) -> Animation:
         Missing, truncated, corrupted, foreign (not an sc_fem animation) or wrong-version file.
     """
     path = Path(path)
-    if not path.is_file():
-        raise ModeFileError(f"animation file not found: {path}")
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as exc:
-        raise ModeFileError(f"{path} is not a readable .npz animation (truncated or corrupted?): {exc}") from None
-    if str(data.get("kind", "")) != ANIMATION_KIND:
-        raise ModeFileError(f"{path} is not an sc_fem animation file (kind={data.get('kind')!r})")
-    version = int(data.get("format_version", -1))
-    if version != ANIMATION_FORMAT_VERSION:
-        raise ModeFileError(f"{path}: unsupported animation format_version {version} "
-                            f"(this sc_fem reads {ANIMATION_FORMAT_VERSION})")
+    data = read_versioned_npz(path, kind=ANIMATION_KIND, version=ANIMATION_FORMAT_VERSION,
+                              what="animation file")
     missing = {"faces", "rest_vertices", "times", "positions", "energy"} - set(data)
     if missing:
         raise ModeFileError(f"{path}: missing keys {sorted(missing)}")

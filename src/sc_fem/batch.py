@@ -102,7 +102,9 @@ def precompute_one(mesh: str, output: str, options: dict) -> dict:
         src = load_mesh(mesh)
         fix = opts.pop("fix", None)
         if fix:
-            fix = _expand_default_fix(list(fix), src)
+            from .models import expand_fix
+
+            fix = expand_fix(list(fix), str(src.metadata.get("source", "")))
         fix_vertices = opts.pop("fix_vertices", None)
         basis = modal(src, fix=fix or None, fix_vertices=fix_vertices, **opts)
         save_modes(basis, output)
@@ -119,22 +121,6 @@ def precompute_one(mesh: str, output: str, options: dict) -> dict:
         row.update(status="error", error=msg, output="")
     row["seconds"] = f"{time.perf_counter() - t0:.3f}"
     return row
-
-
-def _expand_default_fix(specs: list, mesh) -> list:
-    from . import models
-    from .errors import BoundaryConditionError
-
-    out = []
-    for s in specs:
-        if isinstance(s, str) and s.strip().lower() == "default":
-            src = str(mesh.metadata.get("source", ""))
-            if not src.startswith("builtin:"):
-                raise BoundaryConditionError("--fix default is only defined for builtin:NAME models")
-            out += list(models.fix_specs(src))
-        else:
-            out.append(s)
-    return out
 
 
 def write_summary(rows: list[dict], path) -> Path:

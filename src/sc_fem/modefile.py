@@ -38,13 +38,12 @@ foreign or wrong-version file.
 from __future__ import annotations
 
 import json
-import zipfile
-import zlib
 from pathlib import Path
 
 import numpy as np
 
 from ._atomic import save_npz_atomic
+from ._npz import read_versioned_npz
 from .errors import InputError, ModeFileError
 from .modal import ModalBasis
 
@@ -164,24 +163,7 @@ def load_modes(path) -> ModalBasis:
         NaN/inf values.
     """
     path = Path(path)
-    if not path.is_file():
-        raise ModeFileError(f"mode file not found: {path}")
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except (zipfile.BadZipFile, zlib.error, ValueError, OSError, EOFError, KeyError) as exc:
-        raise ModeFileError(f"{path} is not a readable .npz mode file (truncated or corrupted?): "
-                            f"{type(exc).__name__}: {exc}") from None
-    kind = str(data["kind"]) if "kind" in data and data["kind"].shape == () else None
-    if kind != MODES_KIND:
-        raise ModeFileError(f"{path} is not an sc_fem mode file (kind={kind!r}; keys {sorted(data)[:8]})")
-    try:
-        version = int(data.get("format_version", -1))
-    except (TypeError, ValueError):
-        version = -1
-    if version != MODES_FORMAT_VERSION:
-        raise ModeFileError(f"{path}: unsupported mode-file format_version {version} "
-                            f"(this sc_fem reads version {MODES_FORMAT_VERSION})")
+    data = read_versioned_npz(path, kind=MODES_KIND, version=MODES_FORMAT_VERSION, what="mode file")
     _check_arrays(data, path)
     try:
         damping_spec = json.loads(str(data["damping_json"]))

@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import json
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from ._atomic import atomic_path, save_npz_atomic
-from .errors import InputError, ModeFileError
+from ._npz import read_versioned_npz
+from .errors import InputError
 from .lattice import CubeModel
 
 MODEL_FORMAT_VERSION = 1
@@ -45,16 +45,7 @@ def save_model(model: CubeModel, path) -> Path:
 
 def load_model(path) -> CubeModel:
     """Read a model written by :func:`save_model` (``.npz``)."""
-    path = Path(path)
-    if not path.is_file():
-        raise ModeFileError(f"model file not found: {path}")
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            d = {k: z[k] for k in z.files}
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as exc:
-        raise ModeFileError(f"{path} is not a readable model .npz (truncated or corrupted?): {exc}") from None
-    if str(d.get("kind", "")) != MODEL_KIND or int(d.get("format_version", -1)) != MODEL_FORMAT_VERSION:
-        raise ModeFileError(f"{path} is not an sc_fem cube-model file of format version {MODEL_FORMAT_VERSION}")
+    d = read_versioned_npz(path, kind=MODEL_KIND, version=MODEL_FORMAT_VERSION, what="cube-model file")
     return CubeModel.from_cells(d["cells"], origin=d["origin"], pitch=float(d["pitch"]), scale=float(d["scale"]),
                                 dims=d["dims"], mass=d["mass"], youngs=d["youngs"], poisson=d["poisson"],
                                 density=d["density"], connectivity=str(d["connectivity"]),

@@ -193,3 +193,25 @@ def material(name: str) -> Material:
 def fix_specs(name: str) -> tuple[str, ...]:
     """Natural supports of ``name`` in ``--fix`` syntax (model units = metres)."""
     return get(name).fix
+
+
+def expand_fix(specs, source: str) -> list:
+    """Replace every ``"default"`` in a list of fix specs by the natural supports of the built-in
+    model ``source`` (``"builtin:NAME"``); other entries pass through unchanged.
+
+    Raises
+    ------
+    BoundaryConditionError
+        ``"default"`` used for a model that is not built in.
+    """
+    from .errors import BoundaryConditionError
+
+    out: list = []
+    for s in specs:
+        if isinstance(s, str) and s.strip().lower() == "default":
+            if not str(source).startswith("builtin:"):
+                raise BoundaryConditionError("--fix default is only defined for builtin:NAME models")
+            out += list(fix_specs(source))
+        else:
+            out.append(s)
+    return out

@@ -91,19 +91,9 @@ def add_fix_args(p: argparse.ArgumentParser) -> None:
 
 def fix_specs_from_args(args, mesh) -> list[str]:
     """The ``--fix`` specs with ``default`` expanded to the built-in model's supports."""
-    from .. import models
-    from ..errors import BoundaryConditionError
+    from ..models import expand_fix
 
-    specs: list[str] = []
-    for s in args.fix:
-        if s.strip().lower() == "default":
-            src = str(mesh.metadata.get("source", ""))
-            if not src.startswith("builtin:"):
-                raise BoundaryConditionError('--fix default is only defined for builtin:NAME models')
-            specs += list(models.fix_specs(src))
-        else:
-            specs.append(s)
-    return specs
+    return expand_fix(args.fix, str(mesh.metadata.get("source", "")))
 
 
 def fixed_nodes_from_args(args, model, mesh):
