@@ -89,3 +89,28 @@ def test_gif_output(tmp_path):
     rc = main(["simulate", *BEAM, "--gravity", "--duration", "0.01", "--dt", "0.001", "--fps", "500",
                "--magnify", "100", "--quiet", "-o", str(out)])
     assert rc == 0 and out.stat().st_size > 1000
+
+
+def test_xpbd_method_writes_an_animation_that_reconstruct_reads(tmp_path):
+    from sc_fem._cli.main import main
+    from sc_fem.animfile import load_animation
+
+    out = tmp_path / "rope.npz"
+    assert main(["simulate", "builtin:rope", "-r", "16", "--fix", "default", "--gravity", "--method", "xpbd",
+                 "--dt", "0.05", "--substeps", "60", "--duration", "0.3", "--fps", "20", "-o", str(out), "-q"]) == 0
+    anim = load_animation(out)
+    assert anim.n_frames == 7 and anim.meta["method"] == "xpbd" and anim.meta["substeps"] == 60
+    drop = anim.positions[-1, :, 2].min() - anim.rest_vertices[:, 2].min()
+    assert drop < -0.05                                  # the free end falls under gravity
+    fixed_end = anim.rest_vertices[:, 0] < 0.01
+    assert np.abs(anim.positions[-1][fixed_end] - anim.rest_vertices[fixed_end]).max() < 0.02
+    assert main(["reconstruct", str(out), "--fit-frames", "0,2,4,6", "-o", str(tmp_path / "r.npz")]) == 0
+
+
+def test_xpbd_refuses_options_it_does_not_support(tmp_path, capsys):
+    from sc_fem._cli.main import main
+
+    rc = main(["simulate", "builtin:rope", "-r", "8", "--method", "xpbd", "--ground", "0", "--dt", "0.05",
+               "--duration", "0.1", "-o", str(tmp_path / "x.npz")])
+    assert rc == 2 and "--ground" in capsys.readouterr().err
+    assert not (tmp_path / "x.npz").exists()

@@ -33,8 +33,14 @@ def register(sub) -> None:
     add_fix_args(p)
     p.add_argument("--duration", type=float, required=True, help="simulated time, s")
     p.add_argument("--dt", type=float, required=True, help="time step, s")
-    p.add_argument("--method", choices=("newmark", "corotational", "central"), default="newmark",
-                   help="implicit Newmark (default), corotational Newmark (large rotations), explicit central")
+    p.add_argument("--method", choices=("newmark", "corotational", "central", "xpbd"), default="newmark",
+                   help="implicit Newmark (default), corotational Newmark (large rotations), explicit central, "
+                        "or XPBD (gravity and --fix only; --dt is then the frame step, see --substeps)")
+    p.add_argument("--substeps", type=int, default=20, help="XPBD substeps per --dt step (default 20)")
+    p.add_argument("--iterations", type=int, default=1, help="XPBD solver iterations per substep (default 1)")
+    p.add_argument("--constraints", choices=("neohookean", "corotational", "distance"), default="neohookean",
+                   help="XPBD constraints (default neohookean; see sc_fem.xpbd)")
+    p.add_argument("--xpbd-damping", type=float, default=0.0, help="XPBD mass-proportional damping, 1/s")
     p.add_argument("--element", choices=("q1i", "q1", "q1sri"), default="q1i", help="element type (default q1i)")
     p.add_argument("--beta", type=float, default=None, help="Newmark beta (default 1/4, or the HHT value)")
     p.add_argument("--gamma", type=float, default=None, help="Newmark gamma (default 1/2, or the HHT value)")
@@ -109,6 +115,45 @@ def build(args, mesh, model, W):
     return integ
 
 
+def record_xpbd(args, mesh, model, W, n_steps: int, every: int, progress: bool):
+    """Run XPBD (:class:`sc_fem.xpbd.XPBDSolver`) and record the source-mesh vertices every
+    ``every`` steps, as an :class:`sc_fem.integrators.Recording`."""
+    import time
+
+    from ..errors import InputError
+    from ..integrators import Recording
+    from ..xpbd import XPBDSolver
+    from .common import fixed_nodes_from_args
+
+    unsupported = [flag for flag, on in (
+        ("--gust", args.gust is not None), ("--impulse", bool(args.impulse)), ("--ground", args.ground is not None),
+        ("--sphere", args.sphere is not None), ("--box", args.box is not None), ("--rayleigh", any(args.rayleigh)),
+        ("--hht-alpha", bool(args.hht_alpha)), ("--beta", args.beta is not None),
+        ("--gamma", args.gamma is not None)) if on]
+    if unsupported:
+        raise InputError(f"--method xpbd supports gravity and --fix only, not {', '.join(unsupported)}")
+    t0 = time.perf_counter()
+    solver = XPBDSolver(model, args.dt, substeps=args.substeps, iterations=args.iterations,
+                        constraints=args.constraints, gravity=(0.0, 0.0, -9.81) if args.gravity else (0.0, 0.0, 0.0),
+                        fixed=fixed_nodes_from_args(args, model, mesh), damping=args.xpbd_damping)
+    setup = time.perf_counter() - t0
+    rest, X0 = np.asarray(mesh.vertices, dtype=float), model.nodes_m
+    times, points, energy, mechanical = [], [], [], []
+    t1 = time.perf_counter()
+    for st in solver.run(n_steps, progress=progress):          # loop over time steps
+        if st.step % every == 0 or st.step == n_steps:
+            e = solver.energy(st)
+            times.append(st.time)
+            points.append(rest + (W @ (st.positions - X0)) / model.scale)
+            energy.append(e.total)
+            mechanical.append(e.kinetic + e.elastic)
+    return Recording(times=np.array(times), u=np.zeros((0, model.n_nodes, 3)), energy=np.array(energy),
+                     mechanical=np.array(mechanical), points=np.array(points), n_steps=n_steps,
+                     seconds=time.perf_counter() - t1, setup_seconds=setup, method="xpbd", dt=args.dt,
+                     info={"substeps": args.substeps, "iterations": args.iterations,
+                           "constraints": args.constraints})
+
+
 def write_xdmf(path: Path, rest: np.ndarray, faces: np.ndarray, times, positions) -> Path:
     """XDMF time series (XML data, no HDF5 needed): the rest mesh and point data ``displacement``
     (model units) per time; written atomically."""
@@ -167,30 +212,37 @@ def run(args) -> int:
     with stage("voxelize", timings, q):
         model = voxelize_from_args(args, mesh=mesh)
         W = embed(model, np.asarray(mesh.vertices, dtype=float))
-    with stage("setup", timings, q):
-        integ = build(args, mesh, model, W)
-    with stage("simulate", timings, q):
-        rec = record(integ, n_steps, W=W, rest_points=np.asarray(mesh.vertices, float), scale=model.scale,
-                     every=every, progress=not (q or args.no_progress), keep_u=False)
+    integ = None
+    if args.method == "xpbd":
+        with stage("simulate", timings, q):
+            rec = record_xpbd(args, mesh, model, W, n_steps, every, progress=not (q or args.no_progress))
+    else:
+        with stage("setup", timings, q):
+            integ = build(args, mesh, model, W)
+        with stage("simulate", timings, q):
+            rec = record(integ, n_steps, W=W, rest_points=np.asarray(mesh.vertices, float), scale=model.scale,
+                         every=every, progress=not (q or args.no_progress), keep_u=False)
     dtc = integ.dt_crit if args.method == "central" else None
     meta = {"method": args.method, "dt": args.dt, "duration": args.duration, "n_steps": n_steps,
             "source": model.info.get("source", str(args.mesh)), "element": args.element,
             "material": model.info.get("material", ""), "gravity": bool(args.gravity), "ground": args.ground,
             "rayleigh": list(args.rayleigh), "hht_alpha": args.hht_alpha, "dt_crit": dtc,
-            "scale": model.scale, "cubes": model.n_cubes}
+            "scale": model.scale, "cubes": model.n_cubes, **rec.info}
     with stage("write", timings, q):
         _write(out, mesh, rec, meta, args.magnify, args.fps, progress=not (q or args.no_progress))
     if not q:
         print(model_summary(model))
         disp = np.linalg.norm(rec.points - rec.points[0], axis=2).max() if len(rec.points) else 0.0
-        rows = [("method", f"{args.method} ({'implicit' if integ.implicit else 'explicit'})"),
+        kind = (f"{args.substeps} substeps x {args.iterations} iterations, {args.constraints}" if integ is None
+                else ("implicit" if integ.implicit else "explicit"))
+        rows = [("method", f"{args.method} ({kind})"),
                 ("steps", f"{n_steps:,} x {args.dt:g} s = {n_steps * args.dt:g} s ({len(rec.times)} frames)"),
                 ("time per step", f"{1e3 * rec.seconds_per_step:.3g} ms (setup {rec.setup_seconds:.3g} s)"),
                 ("energy drift", f"{rec.energy_drift:+.3e} of max(T + U) = {rec.mechanical.max():.4g} J"),
                 ("max vertex displacement", f"{disp:.4g} model units")]
         if dtc is not None:
             rows.append(("dt / dt_crit", f"{args.dt / dtc:.3g} (dt_crit = {dtc:.4g} s)"))
-        if integ.contact is not None:
+        if integ is not None and integ.contact is not None:
             rows.append(("max contact depth", f"{max(rec.max_contact_depth, 0.0):.3g} model units "
                                               f"(tolerance {integ.contact.tol:.3g})"))
         w = max(len(k) for k, _ in rows)
