@@ -41,3 +41,15 @@ def print_table(headers: list[str], rows: list[list], floatfmt: str = ".4g") -> 
     text = "\n".join(lines)
     print(text)
     return text
+
+
+def save_figure(fig, name: str, dpi: int = 110) -> Path:
+    """Write a matplotlib figure to ``benchmarks/out/NAME`` atomically and say so."""
+    from sc_fem._atomic import atomic_path
+
+    path = out_path(name)
+    fig.tight_layout()
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=dpi, format="png")
+    print(f"wrote {path}")
+    return path

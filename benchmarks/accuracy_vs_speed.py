@@ -22,8 +22,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import scipy.sparse.linalg as sla
 
-from _common import best_time, out_path, print_table
-from sc_fem._atomic import atomic_path
+from _common import best_time, print_table, save_figure
 from sc_fem.assemble import Assembler, assemble
 from sc_fem.boundary import fixed_dofs, fixed_nodes
 from sc_fem.lattice import CubeModel
@@ -143,11 +142,7 @@ def main(argv=None) -> int:
     ax[2].set(xlabel="cubes", ylabel="speed-up over scikit-fem", title="Assembly of K, speed-up")
     ax[2].grid(True, which="both", alpha=0.3)
     ax[2].legend(fontsize=8)
-    fig.tight_layout()
-    path = out_path("accuracy_vs_speed.png")
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=120, format="png")
-    print(f"\nwrote {path}")
+    save_figure(fig, "accuracy_vs_speed.png", dpi=120)
     return 0
 
 

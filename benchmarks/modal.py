@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import out_path, print_table  # noqa: E402
+from _common import print_table, save_figure  # noqa: E402
 
 
 class PeakRSS:
@@ -231,10 +231,7 @@ def main(argv=None) -> int:
     for a in ax:
         a.grid(True, which="both", alpha=0.3)
         a.legend(fontsize=8)
-    fig.tight_layout()
-    png = out_path("modal.png")
-    fig.savefig(png, dpi=110)
-    print(f"\nwrote {png}")
+    save_figure(fig, "modal.png")
     return 0
 
 

@@ -20,13 +20,12 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
+from _common import save_figure
 
 from sc_fem import reconstruct as rec
 
-OUT = Path(__file__).parent / "out"
 FIT = np.arange(0, 11, 2)
 PAPER = {  # Table 1: frame -> (PDE E_A, PDE E_M, B-spline E_A, B-spline E_M)
     0: (0.003035, 0.005387, 0.009169, 0.110480), 1: (0.007886, 0.017251, 0.054134, 0.187488),
@@ -71,7 +70,6 @@ def main(argv=None) -> int:
                     help="frame rate of the 11 keyframes (default 20: frames 0-10 span 0.5 s of the swing)")
     args = ap.parse_args(argv)
     rope_scene = get_rope_scene()
-    OUT.mkdir(parents=True, exist_ok=True)
 
     # 11 keyframes; the XPBD substep is kept at 1/3600 s (60 substeps per 60-fps frame)
     subs = max(1, round(3600.0 / args.fps))
@@ -184,7 +182,6 @@ def main(argv=None) -> int:
               f"{np.array2string(err.mean(axis=1) / diag, precision=5)}")
 
     plot(curves, pde, bsc, e_pde, e_bs)
-    print(f"\nwrote {OUT / 'reconstruction_curves.png'} and {OUT / 'reconstruction_errors.png'}")
     return 0
 
 
@@ -193,7 +190,6 @@ def plot(curves, pde, bsc, e_pde, e_bs) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from sc_fem._atomic import atomic_path
 
     # project onto the two principal directions of curve 1's motion (the swing plane)
     pts = curves[:, 0].reshape(-1, 3)
@@ -212,8 +208,7 @@ def plot(curves, pde, bsc, e_pde, e_bs) -> None:
         ax.set_aspect("equal")
     axes[0, 0].legend(fontsize=7)
     fig.suptitle("Curve 1 of the rope (Figure 6 analogue)")
-    with atomic_path(OUT / "reconstruction_curves.png") as tmp:
-        fig.savefig(tmp, dpi=110)
+    save_figure(fig, "reconstruction_curves.png")
     plt.close(fig)
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
@@ -226,9 +221,7 @@ def plot(curves, pde, bsc, e_pde, e_bs) -> None:
         ax.set_xlabel("frame")
         ax.set_ylabel(f"{key} (curve 1, fraction of D)")
         ax.legend(fontsize=8)
-    fig.tight_layout()
-    with atomic_path(OUT / "reconstruction_errors.png") as tmp:
-        fig.savefig(tmp, dpi=110)
+    save_figure(fig, "reconstruction_errors.png")
     plt.close(fig)
 
 

@@ -19,7 +19,7 @@ import argparse
 import time
 
 import numpy as np
-from _common import out_path, print_table
+from _common import print_table, save_figure
 from scipy.linalg import eigh
 
 from sc_fem.boundary import fixed_nodes
@@ -156,8 +156,7 @@ def main(argv=None) -> int:
         axes[mi, 2].set_ylim(-3, 3)
         axes[mi, 0].legend(fontsize=7)
         axes[mi, 2].legend(fontsize=6)
-    fig.tight_layout()
-    fig.savefig(out_path("stability.png"), dpi=110)
+    save_figure(fig, "stability.png")
     print_table(["model", "method", "dt/dt_crit", "steps", "energy growth", "error", "ms/step"], rows)
 
     fig2, ax = plt.subplots(figsize=(7, 5))
@@ -171,9 +170,7 @@ def main(argv=None) -> int:
     ax.set_title("cantilever: accuracy vs cost (each point one dt)")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
-    fig2.tight_layout()
-    fig2.savefig(out_path("stability_cost.png"), dpi=110)
-    print(f"wrote {out_path('stability.png')} and {out_path('stability_cost.png')}")
+    save_figure(fig2, "stability_cost.png")
     return 0
 
 

@@ -12,7 +12,7 @@ import sys
 import matplotlib.pyplot as plt
 
 import sc_fem
-from _common import SHARED_MESHES, best_time, out_path, print_table
+from _common import SHARED_MESHES, best_time, print_table, save_figure
 
 
 def main(argv=None) -> int:
@@ -50,10 +50,7 @@ def main(argv=None) -> int:
     axes[0].legend(fontsize=7)
     for a in axes:
         a.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
-    path = out_path("voxelize.png")
-    fig.savefig(path, dpi=120)
-    print(f"wrote {path}")
+    save_figure(fig, "voxelize.png", dpi=120)
     return 0
 
 

@@ -27,9 +27,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import out_path, print_table  # noqa: E402
+from _common import print_table, save_figure  # noqa: E402
 
-from sc_fem._atomic import atomic_path  # noqa: E402
 from sc_fem.errors import InstabilityError  # noqa: E402
 from sc_fem.lattice import CubeModel  # noqa: E402
 from sc_fem.xpbd import XPBDSolver, stability_sweep  # noqa: E402
@@ -164,10 +163,7 @@ def main(argv=None) -> int:
         ax.grid(True, which="both", lw=0.3)
     axs[0].legend(fontsize=6)
     fig.suptitle(f"XPBD on the 4 m bar ({m.n_nodes} nodes) vs linear FEM")
-    fig.tight_layout()
-    with atomic_path(out_path("xpbd.png")) as p:
-        fig.savefig(p, dpi=120, format="png")
-    print(f"wrote {out_path('xpbd.png')}")
+    save_figure(fig, "xpbd.png", dpi=120)
     return 0
 
 

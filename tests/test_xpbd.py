@@ -94,9 +94,14 @@ def _oracle_step_corot(model, fixed_mask, x, v, dt, substeps, iterations, gravit
     lam_l, mu = model.lame()
     m = model.node_masses()
     w = np.where(fixed_mask, 0.0, 1.0 / m)
-    e, Q = np.linalg.eigh(_oracle_laplacian())
-    S = Q @ np.diag(np.sqrt(np.clip(e, 0, None))) @ Q.T
     dN = np.array([[(1.0 if o[i] else -1.0) / (4 * h) for i in range(3)] for o in HEX_CORNERS])
+    # deviatoric quadrature: 1/2 exact integral of |grad x - R|^2 + 1/2 one-point (centre) value
+    Lc = 0.5 * _oracle_laplacian()
+    for a in range(8):
+        for b in range(8):
+            Lc[a, b] += 0.5 * h * h * (dN[a] @ dN[b])
+    e, Q = np.linalg.eigh(Lc)
+    S = Q @ np.diag(np.sqrt(np.clip(e, 0, None))) @ Q.T
     Xref = h * HEX_CORNERS
     colour = [int(c[0] % 2 * 4 + c[1] % 2 * 2 + c[2] % 2) for c in model.cells]
     ds = dt / substeps

@@ -90,7 +90,7 @@ def _dense(A) -> np.ndarray:
 def _skfem_parts() -> dict[str, np.ndarray]:
     """Unit-cube matrices from scikit-fem (read-only arrays)."""
     from skfem import BilinearForm, asm
-    from skfem.helpers import ddot, dot, trace
+    from skfem.helpers import dot, trace
     from skfem.models.elasticity import linear_elasticity
 
     full, one = _unit_cube_bases()

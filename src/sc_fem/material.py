@@ -9,7 +9,7 @@ A :class:`Material` is what a built-in model documents and what the CLI accepts;
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 

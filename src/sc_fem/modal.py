@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from .elements import DEFAULT_ELEMENT, check_element
-from .errors import InputError, SolverError
+from .errors import InputError
 from .lattice import CubeModel
 
 DEFAULT_N_MODES = 10

@@ -133,13 +133,20 @@ MATCHINGS, MATCHING_KIND = _matchings()               # (7, 4, 2), (7,) 1=edge 2
 _P1, _P2 = np.array([1, 2, 0]), np.array([2, 0, 1])    # cyclic index shifts for cofactors
 
 
-def _sqrt_laplacian() -> np.ndarray:
-    e, V = np.linalg.eigh(L_REF)
-    return (V * np.sqrt(np.maximum(e, 0.0))) @ V.T
+L_COROT = 0.5 * (L_REF + DN_CENTRE @ DN_CENTRE.T)
+"""Quadrature of the corotational term (8, 8): ``h tr(Y^T L_COROT Y) = 1/2 int_cube |grad y|^2 +
+1/2 V |F_centre(y)|^2`` for corner values ``Y`` -- half fully integrated, half 1-point, which is
+exactly the quadrature mix of the Neo-Hookean pair's linearisation (see the module docstring)."""
 
 
-S_REF = _sqrt_laplacian()
-"""Symmetric square root of :data:`L_REF` (8, 8): ``S S = L_REF``, ``S 1 = 0``."""
+def _sqrt_psd(A: np.ndarray) -> np.ndarray:
+    e, V = np.linalg.eigh(A)
+    e = np.where(e > 1e-12 * e.max(), e, 0.0)          # exact null space (translations: S 1 = 0)
+    return (V * np.sqrt(e)) @ V.T
+
+
+S_REF = _sqrt_psd(L_COROT)
+"""Symmetric square root of :data:`L_COROT` (8, 8): ``S S = L_COROT``, ``S 1 = 0``."""
 
 
 def _cofactor(F: np.ndarray) -> np.ndarray:
