@@ -41,6 +41,27 @@ Constraints (``constraints=``):
     ~11 % stiffer than q1i on a 2-cube-thick beam (fully integrated rotation term), and it costs
     ~2-3x the Neo-Hookean sweep. Use it when the Neo-Hookean pair blows up; not the default.
 
+    Why the Neo-Hookean pair is unstable at long substeps (derived, and measured with the tests'
+    spectral-radius helper, 6x2x2 cubes, h = 5 cm, E = 5 MPa): at rest its Gauss-Newton block
+    ``grad C^T grad C`` only holds volumetric stiffness (the gradients of ``C_D = sqrt(3)`` and
+    ``C_H`` are both ``~ I``); the whole shear stiffness comes from the curvature terms ``mu C_D
+    grad^2 C_D + lam_nh C_H grad^2 C_H`` of the non-zero rest values, which XPBD applies only via
+    re-evaluated gradients times the prestress multipliers -- explicitly, hence a CFL-type limit
+    ``~ h / c_s``. Spectral radius at 0.25 / 0.5 / 1 / 2 / 4 ms substeps: coupled 2x2 (kept) 0.9998 /
+    0.9993 / 3.77 / 104 / 2.5e5; sequential C_D then C_H (2021 paper) 0.9997 / 0.9994 / 1.04 / 2.83 /
+    14.5 (and rest is no longer a fixed point of one iteration); 2x2 with a proximal term ``A_ii (1 +
+    eps)`` (fixed point unchanged) eps = 0.01: 3.63 / 88.9 / 376 at 1 / 2 / 4 ms, eps = 0.1: 2.62 /
+    23.2 / 67.5; corotational 0.9998 / 0.9994 / 0.9990 / 1.00006 / 1.0005. ``C_D = |F| - sqrt(3)``
+    (zero rest value) has no shear stiffness at rest; any scalar deviatoric constraint has a rank-1
+    Gauss-Newton block, so a stable small-strain-exact form needs a block constraint like ARAP. A
+    corotational quadrature with exactly the Neo-Hookean linearisation (``S = sqrt((L + DN DN^T)/2)``:
+    half fully integrated, half 1-point; energies agree to 1e-4, converged 8x2x2 sag 1.052 x q1sri
+    for both) was tried and not kept: equally stable, but at 50 x 1 per 60-fps frame it is softer
+    (quick bar 24x3x3: sag / FEM 1.085, period / FEM 1.047 vs 1.001 / 1.006 for this quadrature,
+    whose full-integration stiffening happens to cancel the one-iteration softening; full bar
+    48x6x6, first peak / (2 FEM sag): 1.51 vs 1.49, Neo-Hookean 1.10). Warm start makes the
+    corotational pair unstable at >= 0.67 ms substeps on the quick bar.
+
 Blow-up detection: after every step, non-finite positions/velocities or a total energy above its
 start by more than ``max_energy_growth`` (default 10) x ``energy_scale`` (max of initial kinetic +
 elastic energy and ``M |g| diameter``) raise :class:`~sc_fem.errors.InstabilityError` naming the step
@@ -133,20 +154,13 @@ MATCHINGS, MATCHING_KIND = _matchings()               # (7, 4, 2), (7,) 1=edge 2
 _P1, _P2 = np.array([1, 2, 0]), np.array([2, 0, 1])    # cyclic index shifts for cofactors
 
 
-L_COROT = 0.5 * (L_REF + DN_CENTRE @ DN_CENTRE.T)
-"""Quadrature of the corotational term (8, 8): ``h tr(Y^T L_COROT Y) = 1/2 int_cube |grad y|^2 +
-1/2 V |F_centre(y)|^2`` for corner values ``Y`` -- half fully integrated, half 1-point, which is
-exactly the quadrature mix of the Neo-Hookean pair's linearisation (see the module docstring)."""
+def _sqrt_laplacian() -> np.ndarray:
+    e, V = np.linalg.eigh(L_REF)
+    return (V * np.sqrt(np.maximum(e, 0.0))) @ V.T
 
 
-def _sqrt_psd(A: np.ndarray) -> np.ndarray:
-    e, V = np.linalg.eigh(A)
-    e = np.where(e > 1e-12 * e.max(), e, 0.0)          # exact null space (translations: S 1 = 0)
-    return (V * np.sqrt(e)) @ V.T
-
-
-S_REF = _sqrt_psd(L_COROT)
-"""Symmetric square root of :data:`L_COROT` (8, 8): ``S S = L_COROT``, ``S 1 = 0``."""
+S_REF = _sqrt_laplacian()
+"""Symmetric square root of :data:`L_REF` (8, 8): ``S S = L_REF``, ``S 1 = 0``."""
 
 
 def _cofactor(F: np.ndarray) -> np.ndarray:
@@ -653,12 +667,25 @@ class XPBDSolver:
         if not finite or not growth <= self.max_energy_growth:
             what = ("non-finite positions" if not finite else
                     f"energy grew by {growth:.3g} x its scale {self.energy_scale:.3g} J")
+            hint = self.substep_hint
+            need = int(np.ceil(self.dt / hint))
             raise InstabilityError(
                 f"XPBD ({self.constraints}) blew up at step {self.n_steps} (t = {self.time:g} s): {what}; "
                 f"substep {ds * 1e3:.4g} ms ({self.substeps} substeps of the {self.dt:g} s step) is too "
-                f"long -- use more substeps" + (" or constraints='corotational'" if self.constraints ==
-                                               "neohookean" else ""))
+                f"long: with one Gauss-Seidel sweep the shear stiffness is integrated explicitly, so "
+                f"substeps must stay below roughly 0.4 h / c_s = {hint * 1e3:.3g} ms here (c_s the shear "
+                f"wave speed) -- use substeps >= {need}" + (" or constraints='corotational' (stable, but soft "
+                f"at long substeps)" if self.constraints == "neohookean" else ""))
         return self.state
+
+    @property
+    def substep_hint(self) -> float:
+        """Rule-of-thumb longest stable substep, s: ``0.4 h / c_s`` with the shear wave speed
+        ``c_s = sqrt(mu / rho)`` of the median cube (``rho`` = cube mass / h^3). Measured limits: 4 m
+        bar (h = 8.3 cm, 50 MPa) ~0.5 ms vs hint 0.24 ms; 5 cm, 5 MPa lattice 0.66 ms vs 0.46 ms."""
+        _, mu = self.model.lame()
+        rho = self.model.mass / self.model.h ** 3
+        return 0.4 * self.model.h / float(np.median(np.sqrt(mu / rho)))
 
     def energy_growth(self) -> float:
         """``(E_total - E_total(t=0)) / energy_scale`` now (dimensionless; XPBD should keep it
