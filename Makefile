@@ -25,7 +25,7 @@ test: $(STAMP)
 	$(PY) -m pytest -q -p no:cacheprovider tests $(wildcard notebooks/*.ipynb) $(if $(wildcard notebooks/*.ipynb),--nbmake,)
 
 bench: $(STAMP)
-	for f in benchmarks/*.py; do $(PY) $$f || exit 1; done
+	for f in benchmarks/[a-z]*.py; do $(PY) $$f $(BENCH_ARGS) || exit 1; done
 
 clean:
 	rm -rf $(VENV) $(OUT) benchmarks/out build src/*.egg-info
