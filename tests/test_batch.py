@@ -48,3 +48,16 @@ def test_inputs_and_names(tmp_path):
     assert output_name("builtin:bridge") == "bridge.modes.npz" and output_name("x/y.stl") == "y.modes.npz"
     with pytest.raises(InputError, match="no file matches"):
         expand_inputs([str(tmp_path / "*.ply")])
+
+
+def test_without_dask_runs_serially_and_scheduler_is_refused(tmp_path, monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "dask.distributed", None)       # import now raises ImportError
+    bad = tmp_path / "broken.obj"
+    bad.write_text("v 0 0 0\nv 1 nan 0\nf 1 2 3\n")
+    res = run_batch(["builtin:beam", str(bad)], tmp_path / "out", options=OPTS, progress=False)
+    assert res.scheduler.startswith("serial") and [r["status"] for r in res.rows] == ["ok", "error"]
+    assert load_modes(res.rows[0]["output"]).n_modes == 3
+    with pytest.raises(InputError, match="dask"):
+        run_batch(["builtin:beam"], tmp_path / "out2", options=OPTS, scheduler="tcp://127.0.0.1:1")

@@ -160,9 +160,15 @@ def run_batch(meshes, out_dir, *, options: dict | None = None, scheduler: str | 
     -------
     BatchResult
     """
-    from dask.distributed import Client, LocalCluster, as_completed
     from tqdm import tqdm
 
+    try:
+        from dask.distributed import Client, LocalCluster, as_completed
+    except ImportError:
+        if scheduler:
+            raise InputError("--scheduler needs dask.distributed, which is not installed: "
+                             "pip install 'sc_fem[batch]'") from None
+        Client = None                                     # serial fallback, same rows and summary
     meshes = expand_inputs(meshes)
     if not meshes:
         raise InputError("no meshes given")
@@ -178,6 +184,17 @@ def run_batch(meshes, out_dir, *, options: dict | None = None, scheduler: str | 
     outputs = [str(out / n) for n in names]
     opts = dict(options or {})
     t0 = time.perf_counter()
+    if Client is None:
+        bar = tqdm(total=len(meshes), desc="meshes (serial: dask not installed)", unit="mesh",
+                   disable=not progress, file=sys.stderr)
+        rows = []
+        for m, o in zip(meshes, outputs):                 # loop over input meshes
+            rows.append(precompute_one(m, o, opts))
+            bar.update(1)
+        bar.close()
+        summary = write_summary(rows, out / "summary.csv")
+        return BatchResult(rows=rows, summary=summary, seconds=time.perf_counter() - t0,
+                           scheduler="serial (dask not installed)")
     cluster = None
     if scheduler:
         client = Client(scheduler, timeout="20s")
