@@ -363,3 +363,40 @@ def test_fit_rejects_nan_and_bspline_bad_input():
         R.bspline_baseline(curves, t, [0, 9])
     with pytest.raises(InputError, match="shape"):
         R.errors(curves, curves[:, :1])
+
+
+# ---------------------------------------------------------------- lattice node lines
+def test_lattice_lines_partition_the_nodes_along_the_long_axis():
+    from sc_fem.lattice import CubeModel
+
+    m = CubeModel.box((6, 2, 3), 0.1)
+    lines = R.lattice_lines(m)
+    assert lines.shape == (3 * 4, 7)
+    assert sorted(lines.ravel()) == list(range(m.n_nodes))
+    along = m.node_index[lines, 0]
+    assert np.all(along == np.arange(7)[None, :])
+    others = m.node_index[lines][:, :, 1:]
+    assert np.all(others == others[:, :1])                          # a line keeps (j, k)
+    holey = m.subset(~((m.cells[:, 0] >= 3) & (m.cells[:, 2] == 2)))   # an L-shape: top lines end early
+    with pytest.raises(InputError, match="not all complete"):
+        R.lattice_lines(holey)
+
+
+def test_mesh_from_lattice_lines_is_exactly_the_embedding():
+    import sc_fem
+    from sc_fem.lattice import CubeModel
+
+    rng = np.random.default_rng(3)
+    m = CubeModel.box((8, 2, 2), 0.1)
+    lines = R.lattice_lines(m)
+    verts = m.origin + rng.uniform(0, 1, (50, 3)) * (m.dims * m.pitch)
+    disp = 0.01 * rng.normal(size=(3, m.n_nodes, 3))                 # three frames of node motion
+    nodes = m.nodes[None] + disp
+
+    class Exact:                                                    # a "fit" that returns the true lines
+        def evaluate(self, t):
+            return nodes[np.asarray(t, dtype=int)][:, lines]
+
+    W = sc_fem.embed(m, verts)
+    got = R.mesh_vertices(Exact(), np.arange(3), W[:, lines.ravel()], m.nodes[lines], verts)
+    np.testing.assert_allclose(got, verts[None] + np.einsum("vn,tnc->tvc", W.toarray(), disp), atol=1e-14)

@@ -27,6 +27,8 @@ class RopeScene:
     vertex_positions : ndarray, shape (n_frames, n_vertices, 3)
         Source-mesh vertices per frame, model units.
     faces : ndarray of int, shape (n_faces, 3)
+    node_positions : ndarray, shape (n_frames, n_nodes, 3)
+        Lattice node positions per frame, model units.
     model : CubeModel
     timings : dict
         Wall seconds: ``"voxelize"``, ``"simulate"``, ``"per_frame"``, ``"total"``.
@@ -36,6 +38,7 @@ class RopeScene:
     times: np.ndarray
     vertex_positions: np.ndarray
     faces: np.ndarray
+    node_positions: np.ndarray
     model: CubeModel
     timings: dict = field(default_factory=dict)
 
@@ -121,12 +124,14 @@ def rope_scene(n_frames: int = 201, fps: float = 60.0, resolution: int = 40, sub
                         fixed=fixed, damping=damping)
     rest = model.nodes_m
     out = np.empty((n_frames, len(pts), 3))
+    nodes = np.empty((n_frames, model.n_nodes, 3))
     for f, st in enumerate(solver.run(n_frames - 1, progress=progress)):
         out[f] = pts + (W @ (st.positions - rest)) / model.scale
+        nodes[f] = st.positions / model.scale
     t2 = _time.perf_counter()
     nv = len(verts)
     return RopeScene(curves=out[:, nv:].reshape(n_frames, n_curves, n_points, 3),
                      times=np.arange(n_frames) / fps, vertex_positions=out[:, :nv],
-                     faces=np.asarray(mesh.faces, dtype=np.int64), model=model,
+                     faces=np.asarray(mesh.faces, dtype=np.int64), node_positions=nodes, model=model,
                      timings={"voxelize": t1 - t0, "simulate": t2 - t1,
                               "per_frame": (t2 - t1) / max(n_frames - 1, 1), "total": t2 - t0})

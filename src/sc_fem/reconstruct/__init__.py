@@ -12,7 +12,7 @@ Modules: :mod:`.basis` (the 32 functions and the PDE each satisfies), :mod:`.rig
 
 from .basis import basis, paper_scale, pde_sign, space_basis, time_basis
 from .bspline import BSplineModel, bspline_baseline
-from .meshmap import curve_mesh_map, extract_curves, mesh_vertices
+from .meshmap import curve_mesh_map, extract_curves, lattice_lines, mesh_vertices
 from .metrics import ReconstructionErrors, curve_diameter, errors
 from .param import parametrize
 from .pde import PDEModel, SearchResult, fit
@@ -21,6 +21,6 @@ from .rigid import RigidAlignment, RigidMotion, kabsch, remove_rigid
 __all__ = [
     "BSplineModel", "PDEModel", "ReconstructionErrors", "RigidAlignment", "RigidMotion", "SearchResult",
     "basis", "bspline_baseline", "curve_diameter", "curve_mesh_map", "errors", "extract_curves", "fit",
-    "kabsch", "mesh_vertices", "paper_scale", "parametrize", "pde_sign", "remove_rigid", "space_basis",
+    "kabsch", "lattice_lines", "mesh_vertices", "paper_scale", "parametrize", "pde_sign", "remove_rigid", "space_basis",
     "time_basis",
 ]

@@ -5,6 +5,10 @@
   ``W @`` (curve-point displacement), which is exact for translations and first-order accurate for
   rotations and bending (a vertex off the curves does not rotate with them). It is a simple and
   honest map; its error against the true mesh is measured by ``benchmarks/reconstruction.py``.
+* :func:`lattice_lines` gives the cube lattice's node lines along its longest axis as curves.
+  Fitted like any curves, they map back to the mesh *exactly* through the trilinear embedding:
+  ``mesh_vertices(fit, t, embed(model, vertices)[:, lines.ravel()], rest_nodes[lines], vertices)``
+  (the columns of W reordered to the lines), because every vertex moves as W times the nodes.
 * :func:`extract_curves` picks curves in a mesh for animations that have none: vertices are split
   into ``n_points`` slabs of equal count along the rest principal axis (PCA) and, in every slab,
   the vertex whose angle about the axis is closest to each of ``n_curves`` equally spaced angles
@@ -76,6 +80,42 @@ def mesh_vertices(model, t, W, rest_curves, rest_vertices) -> np.ndarray:
     nt = len(disp)
     moved = rv + (W @ disp.transpose(1, 0, 2).reshape(len(rc), nt * 3)).reshape(len(rv), nt, 3).transpose(1, 0, 2)
     return moved[0] if np.ndim(t) == 0 else moved
+
+
+def lattice_lines(model, axis: int | None = None) -> np.ndarray:
+    """Node indices of the lattice lines along ``axis`` (default: the longest grid axis).
+
+    Parameters
+    ----------
+    model : CubeModel
+    axis : {0, 1, 2}, optional
+
+    Returns
+    -------
+    ndarray of int, shape (L, P)
+        One row per line (nodes sharing the other two lattice indices), ordered along ``axis``;
+        together the rows hold every node exactly once.
+
+    Raises
+    ------
+    InputError
+        The lines do not all have the same nodes along ``axis`` (a lattice with holes or
+        branches); use curves on the surface instead.
+    """
+    ni = np.asarray(model.node_index)
+    ax = int(np.argmax(model.dims)) if axis is None else int(axis)
+    if ax not in (0, 1, 2):
+        raise InputError(f"axis must be 0, 1 or 2, got {axis!r}")
+    others = [a for a in range(3) if a != ax]
+    order = np.lexsort((ni[:, ax], ni[:, others[1]], ni[:, others[0]]))
+    key = ni[order][:, others]
+    starts = np.flatnonzero(np.r_[True, np.any(np.diff(key, axis=0) != 0, axis=1)])
+    counts = np.diff(np.r_[starts, len(order)])
+    along = ni[order, ax]
+    if np.any(counts != counts[0]) or np.any(along.reshape(len(starts), -1) != along[: counts[0]][None]):
+        raise InputError("the lattice's node lines are not all complete along the axis (holes or branches); "
+                         "lattice_lines needs a bar-like lattice")
+    return order.reshape(len(starts), counts[0])
 
 
 def extract_curves(rest_vertices, n_curves: int = 8, n_points: int = 64) -> np.ndarray:
