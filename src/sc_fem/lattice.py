@@ -33,6 +33,15 @@ CONNECTIVITY = {"face": 1, "edge": 2, "vertex": 3}
 an edge (18-connected) or a corner (26-connected)."""
 
 
+def voxel_index(points: np.ndarray, origin: np.ndarray, pitch: float, dims: np.ndarray) -> np.ndarray:
+    """Lattice cell (i, j, k) of each point, shape (n, 3) int64, clipped into the grid.
+
+    Cells are half-open ``[lo, lo + pitch)``, except that points on the upper faces of the grid
+    belong to the last cell.
+    """
+    return np.clip(np.floor((points - origin) / pitch).astype(np.int64), 0, np.asarray(dims) - 1)
+
+
 @dataclass(frozen=True, eq=False)
 class CubeModel:
     """A lattice of elastic cubes built from a geometric model.

@@ -20,7 +20,6 @@ from .errors import MeshError, MeshFileError
 BUILTIN_PREFIX = "builtin:"
 
 # meshio cell types whose faces we triangulate (others -- lines, vertices -- are ignored)
-_POLY_CELLS = {"triangle": 3, "quad": 4, "polygon": None}
 _VOLUME_FACES = {
     "tetra": [[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]],
     "hexahedron": [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]],
@@ -193,11 +192,16 @@ def _triangulate_meshio(m) -> tuple[np.ndarray, np.ndarray]:
             polys = data[:, faces].reshape(-1, faces.shape[1])
         else:
             continue
-        k = polys.shape[1]
-        fan = np.stack([np.zeros(k - 2, int), np.arange(1, k - 1), np.arange(2, k)], axis=1)
-        tris.append(polys[:, fan].reshape(-1, 3))
+        tris.append(_fan_triangulate(polys))
     faces = np.concatenate(tris) if tris else np.zeros((0, 3), dtype=np.int64)
     return points, faces
+
+
+def _fan_triangulate(polys: np.ndarray) -> np.ndarray:
+    """Triangles (m (k - 2), 3) of convex k-gons (m, k) by fans from each polygon's first vertex."""
+    k = polys.shape[1]
+    fan = np.stack([np.zeros(k - 2, int), np.arange(1, k - 1), np.arange(2, k)], axis=1)
+    return polys[:, fan].reshape(-1, 3)
 
 
 def _validate(vertices, faces, label: str) -> tuple[np.ndarray, np.ndarray]:
@@ -225,10 +229,7 @@ def _validate(vertices, faces, label: str) -> tuple[np.ndarray, np.ndarray]:
     if f.size and (f.min() < 0 or f.max() >= len(v)):
         raise MeshError(f"{label}: faces index vertices that do not exist "
                         f"(indices range [{int(f.min())}, {int(f.max())}], {len(v)} vertices)")
-    if f.shape[1] > 3:  # fan-triangulate polygons
-        k = f.shape[1]
-        fan = np.stack([np.zeros(k - 2, int), np.arange(1, k - 1), np.arange(2, k)], axis=1)
-        f = f[:, fan].reshape(-1, 3)
+    f = _fan_triangulate(f)
     extent = np.ptp(v, axis=0)
     if extent.max() <= 1e-12 * max(1.0, float(np.abs(v).max())):
         raise MeshError(f"{label}: zero-extent bounding box (all {len(v)} vertices coincide)")

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .lattice import voxel_index
+
 _AXES = np.eye(3)
 
 
@@ -59,8 +61,8 @@ def overlapping_cells(vertices: np.ndarray, faces: np.ndarray, origin: np.ndarra
         One overlapping face per voxel (for material look-up).
     """
     tri_all = vertices[faces]
-    lo = np.clip(np.floor((tri_all.min(axis=1) - origin) / pitch).astype(np.int64), 0, dims - 1)
-    hi = np.clip(np.floor((tri_all.max(axis=1) - origin) / pitch).astype(np.int64), 0, dims - 1)
+    lo = voxel_index(tri_all.min(axis=1), origin, pitch, dims)
+    hi = voxel_index(tri_all.max(axis=1), origin, pitch, dims)
     span = hi - lo + 1
     count = span.prod(axis=1)
     half = 0.5 * pitch * (1.0 + 1e-9)

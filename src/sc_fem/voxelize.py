@@ -18,7 +18,7 @@ from scipy.spatial import cKDTree
 
 from ._validate import check_material, positive_int, positive_scalar
 from .errors import InputError, MaterialError, ResolutionError
-from .lattice import CONNECTIVITY, CubeModel
+from .lattice import CONNECTIVITY, CubeModel, voxel_index
 from .material import Material, resolve_field
 from .mesh import load_mesh
 from .overlap import overlapping_cells
@@ -125,8 +125,7 @@ def hash_samples(points: np.ndarray, masses: np.ndarray, values: dict[str, np.nd
     averages : dict of name -> ndarray (k,)
         Mass-weighted average of each value per voxel.
     """
-    ijk = np.clip(np.floor((points - origin) / pitch).astype(np.int64), 0, dims - 1)
-    lin = np.ravel_multi_index(ijk.T, dims)
+    lin = np.ravel_multi_index(voxel_index(points, origin, pitch, dims).T, dims)
     uniq, inv = np.unique(lin, return_inverse=True)
     cube_mass = np.bincount(inv, weights=masses, minlength=len(uniq))
     if np.any(cube_mass <= 0):
@@ -254,9 +253,8 @@ def voxelize(mesh: Any, *, resolution: int | None = None, pitch: float | None = 
         surf = surface_grid_samples(vertices, faces, spacing)
 
     shape = tuple(int(d) for d in dims)
-    ijk = np.clip(np.floor((surf.points - origin) / pitch).astype(np.int64), 0, dims - 1)
     occupied = np.zeros(shape, dtype=bool)
-    occupied[tuple(ijk.T)] = True
+    occupied[tuple(voxel_index(surf.points, origin, pitch, dims).T)] = True
     extra = Samples(np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64))
     n_exact_only = 0
     if method == "exact":
@@ -268,6 +266,8 @@ def voxelize(mesh: Any, *, resolution: int | None = None, pitch: float | None = 
             extra = Samples(pts, np.full(n_exact_only, 0.5 * spacing**2), xface[new])
             occupied[tuple(xcells[new].T)] = True
     surface_cells = int(occupied.sum())
+    shell = Samples(np.vstack([surf.points, extra.points]), np.r_[surf.weight, extra.weight],
+                    np.r_[surf.face, extra.face].astype(np.int64))      # every sample on the surface
 
     # ---- per-sample material
     def fields(samples: Samples, face_for_material):
@@ -285,24 +285,20 @@ def voxelize(mesh: Any, *, resolution: int | None = None, pitch: float | None = 
         face_for = None
         if np.ndim(youngs) == 1 or np.ndim(poisson) == 1 or np.ndim(density) == 1:
             # per-face material: interior samples take the material of the nearest surface sample
-            src = Samples(np.vstack([surf.points, extra.points]), np.r_[surf.weight, extra.weight],
-                          np.r_[surf.face, extra.face])
-            _, nearest = cKDTree(src.points).query(vol.points)
-            face_for = src.face[nearest]
+            _, nearest = cKDTree(shell.points).query(vol.points)
+            face_for = shell.face[nearest]
         E, nu, rho = fields(vol, face_for)
         m = rho * vol.weight * scale**3
         all_pts = vol.points
     else:
-        allsamp = Samples(np.vstack([surf.points, extra.points]), np.r_[surf.weight, extra.weight],
-                          np.r_[surf.face, extra.face].astype(np.int64))
-        E, nu, rho = fields(allsamp, allsamp.face if len(faces) else None)
+        E, nu, rho = fields(shell, shell.face if len(faces) else None)
         h = pitch * scale
         thick = h if shell_thickness is None else positive_scalar(shell_thickness, "shell_thickness")
         if len(faces) == 0:     # point cloud: each point stands for an equal share of one cube layer
-            m = rho * h**3 * np.ones(len(allsamp)) * (np.count_nonzero(occupied) / len(allsamp))
+            m = rho * h**3 * (surface_cells / len(shell))
         else:
-            m = rho * allsamp.weight * scale**2 * thick
-        all_pts = allsamp.points
+            m = rho * shell.weight * scale**2 * thick
+        all_pts = shell.points
     if mass is not None:
         m = m * (mass / m.sum())
 

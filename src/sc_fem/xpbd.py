@@ -675,7 +675,7 @@ class XPBDSolver:
                 f"long: with one Gauss-Seidel sweep the shear stiffness is integrated explicitly, so "
                 f"substeps must stay below roughly 0.4 h / c_s = {hint * 1e3:.3g} ms here (c_s the shear "
                 f"wave speed) -- use substeps >= {need}" + (" or constraints='corotational' (stable, but soft "
-                f"at long substeps)" if self.constraints == "neohookean" else ""))
+                "at long substeps)" if self.constraints == "neohookean" else ""))
         return self.state
 
     @property

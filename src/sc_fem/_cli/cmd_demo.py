@@ -43,7 +43,7 @@ def _rope_reconstruction(out: Path) -> list[Path]:
     from ..animfile import save_animation
     from ..render import render_animation
     from ..rope_scene import rope_scene
-    from .main import main as cli
+    from .main import build_parser
 
     scene = rope_scene(n_frames=11, fps=20.0, substeps=180)       # substep 1/3600 s
     anim = save_animation(out / "rope_xpbd.npz", faces=scene.faces, rest_vertices=scene.vertex_positions[0],
@@ -52,9 +52,9 @@ def _rope_reconstruction(out: Path) -> list[Path]:
     gif = render_animation(scene.vertex_positions, scene.faces, out / "rope_xpbd.gif", fps=10,
                            window_size=(640, 480), title="XPBD cube-rope, frames 0-10")
     recon, report = out / "rope_reconstruction.npz", out / "rope_reconstruction.md"
-    rc = cli(["reconstruct", str(anim), "--fit-frames", "0,2,4,6,8,10", "-o", str(recon), "--report", str(report)])
-    if rc != 0:
-        raise RuntimeError("the reconstruction step of the demo failed")
+    args = build_parser().parse_args(["reconstruct", str(anim), "--fit-frames", "0,2,4,6,8,10",
+                                      "-o", str(recon), "--report", str(report)])
+    args.func(args)                    # errors propagate as ScFemError to the demo's own handler
     return [anim, gif, recon, report]
 
 

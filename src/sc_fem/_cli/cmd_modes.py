@@ -10,7 +10,7 @@ import os
 import sys
 from pathlib import Path
 
-from .common import add_fix_args, add_grid_args, add_material_args, stage
+from .common import add_fix_args, add_grid_args, add_material_args, add_mesh_arg, stage
 
 
 def register(sub) -> None:
@@ -20,9 +20,7 @@ def register(sub) -> None:
                     "write a mode file (.npz, see the README). Several meshes (or a glob such as "
                     "'assets/*.obj') with -o FOLDER run as one Dask task per mesh (a local cluster, or "
                     "--scheduler ADDRESS) and write FOLDER/NAME.modes.npz plus FOLDER/summary.csv.")
-    p.add_argument("mesh", metavar="MESH", nargs="+",
-                   help="mesh file(s) (OBJ, STL, PLY, OFF, glTF, VTK/VTU, ...), glob patterns or builtin:NAME "
-                        "(chair, bridge, rope, beam)")
+    add_mesh_arg(p, many=True)
     p.add_argument("-o", "--output", required=True, help="mode file (.npz) for one mesh, or a folder for several")
     add_grid_args(p, auto=True)
     p.add_argument("--tolerance", type=float, default=None,

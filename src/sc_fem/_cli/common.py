@@ -8,10 +8,16 @@ import time
 from contextlib import contextmanager
 
 
-def add_mesh_arg(p: argparse.ArgumentParser) -> None:
-    p.add_argument("mesh", metavar="MESH",
-                   help="mesh file (OBJ, STL, PLY, OFF, glTF, VTK/VTU, ...) or builtin:NAME "
-                        "(chair, bridge, rope, beam)")
+def add_mesh_arg(p: argparse.ArgumentParser, *, many: bool = False) -> None:
+    """The positional MESH (``many``: one or more, glob patterns allowed)."""
+    if many:
+        p.add_argument("mesh", metavar="MESH", nargs="+",
+                       help="mesh file(s) (OBJ, STL, PLY, OFF, glTF, VTK/VTU, ...), glob patterns or "
+                            "builtin:NAME (chair, bridge, rope, beam)")
+    else:
+        p.add_argument("mesh", metavar="MESH",
+                       help="mesh file (OBJ, STL, PLY, OFF, glTF, VTK/VTU, ...) or builtin:NAME "
+                            "(chair, bridge, rope, beam)")
 
 
 def add_grid_args(p: argparse.ArgumentParser, *, auto: bool = False,
