@@ -24,6 +24,22 @@ def test_round_trip_with_curves(tmp_path, rng):
     assert b.positions.dtype == np.float32 and b.meta == {"method": "x"} and b.n_frames == 4
     with np.load(p) as z:
         np.testing.assert_array_equal(z["curves"], curves)
+    assert b.curves is not None and b.curves.dtype == np.float64
+    np.testing.assert_array_equal(b.curves, curves)
+    assert load_animation(save_animation(tmp_path / "nc.npz", **a)).curves is None
+
+
+@pytest.mark.parametrize("bad, msg", [
+    (lambda c: c[:3], "curves must have shape"),                 # wrong number of frames
+    (lambda c: c[..., :2], "curves must have shape"),            # not 3-D points
+    (lambda c: c[:, 0], "curves must have shape"),               # (T, P, 3): no curve axis
+    (lambda c: np.where(np.arange(7)[:, None] == 3, np.nan, c), "non-finite"),
+])
+def test_bad_curves_raise(tmp_path, rng, bad, msg):
+    a = _anim(rng)
+    p = save_animation(tmp_path / "a.npz", **a, extra={"curves": bad(rng.normal(size=(4, 2, 7, 3)))})
+    with pytest.raises(ModeFileError, match=msg):
+        load_animation(p)
 
 
 def test_bad_writes(tmp_path, rng):

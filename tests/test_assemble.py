@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import scipy.sparse as sp
 
 from sc_fem.assemble import Assembler, assemble
 from sc_fem.boundary import fixed_dofs
@@ -58,6 +57,8 @@ def test_fast_equals_skfem(element, shape, seed):
     Kl, Ml = assemble(model, element, lumped=True)
     _, Msl = assemble(model, element, lumped=True, method="skfem")
     assert rel_err(Ml, Msl) < 1e-12
+    assert rel_err(Kl, Kf) == 0                       # lumping changes M only
+    np.testing.assert_allclose(Ml.diagonal().reshape(-1, 3).sum(axis=0), model.total_mass, rtol=1e-12)
 
 
 @pytest.mark.parametrize("element", ["q1", "q1sri"])
@@ -125,6 +126,33 @@ def test_reassembly_with_new_materials_and_element_matrices():
         A.stiffness(element_matrices=Kr[:-1])
 
 
+def test_material_and_mass_arguments_are_validated():
+    model = random_model((3, 2, 2), 6)
+    A = Assembler(model, "q1i")
+    n = model.n_cubes
+    with pytest.raises(InputError, match=rf"youngs must have shape \({n},\)"):
+        A.stiffness(youngs=np.ones(5))
+    with pytest.raises(InputError, match="poisson must have shape"):
+        A.stiffness(poisson=np.full((n, 2), 0.3))
+    with pytest.raises(InputError, match="youngs contains 1 non-finite"):
+        A.stiffness(youngs=np.r_[np.nan, np.ones(n - 1)])
+    with pytest.raises(InputError, match="masses must have shape"):
+        A.mass(masses=np.ones(5))
+    with pytest.raises(InputError, match="masses must have shape"):
+        model.node_masses(np.ones(n + 1))
+    # a scalar material is the same as a uniform per-cube array
+    assert rel_err(A.stiffness(youngs=2e9, poisson=0.25),
+                   A.stiffness(youngs=np.full(n, 2e9), poisson=np.full(n, 0.25))) == 0
+    # explicit per-cube masses reach both mass matrices
+    m2 = np.random.default_rng(3).uniform(0.5, 2.0, model.n_cubes)
+    Ml = A.mass(lumped=True, masses=m2)
+    np.testing.assert_allclose(Ml.diagonal().reshape(-1, 3), np.repeat(model.node_masses(m2)[:, None], 3, 1),
+                               rtol=1e-14)
+    ex = np.tile([0, 0, 1.0], model.n_nodes)
+    assert ex @ (A.mass(masses=m2) @ ex) == pytest.approx(m2.sum(), rel=1e-12)
+    assert model.node_masses(m2).sum() == pytest.approx(m2.sum(), rel=1e-12)
+
+
 @pytest.mark.parametrize("lumped", [False, True])
 def test_total_mass_and_rigid_kinetic_energy(lumped):
     model = random_model((6, 5, 4), 9)
@@ -181,4 +209,3 @@ def test_patch_test_linear_field_reproduced(element):
     rhs = -(K_full @ ub)[A.free_dofs]
     uf = factorize(K).solve(rhs)
     assert np.abs(uf - u_exact.ravel()[A.free_dofs]).max() < 1e-10 * np.abs(u_exact).max()
-    assert sp.issparse(K_full)

@@ -74,6 +74,16 @@ def test_vertices_fix_the_nodes_of_their_cubes(model):
     assert np.array_equal(nodes, np.unique(model.hexes[cubes]))
     with pytest.raises(BoundaryConditionError, match="vertex indices"):
         fixed_nodes(model, vertices=[3], mesh_vertices=verts)
+    # a precomputed embedding of all vertices gives the same nodes (and the same range check)
+    from sc_fem.embed import embedding
+
+    emb = embedding(model, verts)
+    assert np.array_equal(fixed_nodes(model, vertices=[0, 1], mesh_embedding=emb), nodes)
+    with pytest.raises(BoundaryConditionError, match="vertex indices"):
+        fixed_nodes(model, vertices=[3], mesh_embedding=emb)
+    # mesh_vertices without vertices is ignored: only the specs count
+    assert np.array_equal(fixed_nodes(model, "x<min+0", mesh_vertices=verts), fixed_nodes(model, "x<min+0"))
+    assert fixed_nodes(model, mesh_vertices=verts).size == 0
 
 
 def test_vertex_file(tmp_path):

@@ -26,6 +26,9 @@ def test_omega_max_matches_dense_eigenvalues():
     w2 = eigh(integ.K.toarray(), integ.M.toarray(), eigvals_only=True)
     assert max_frequency(integ.K, integ.M) == pytest.approx(np.sqrt(w2.max()), rel=1e-6)
     assert integ.dt_crit == pytest.approx(2.0 / np.sqrt(w2.max()), rel=1e-6)
+    # every integrator reports the same explicit limit (built with the lumped mass even when its
+    # own mass is consistent)
+    assert Newmark(m, 1e-5, fixed_nodes=fx).dt_crit == pytest.approx(integ.dt_crit, rel=1e-6)
     # scaling: dt_crit ~ h / c_p, so halving the cube size halves it
     m2 = CubeModel.box((12, 4, 4), 0.025, youngs=1e7, poisson=0.3, density=1000.0)
     dt2 = critical_time_step(*_km(m2))

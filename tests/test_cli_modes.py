@@ -21,6 +21,12 @@ def _render_ok():
         pytest.skip(f"no off-screen rendering here: {exc}")
 
 
+def _drawn_fraction(img) -> float:
+    """Fraction of pixels clearly not the white background (a blank render gives 0)."""
+    rgb = np.asarray(img)[..., :3].astype(int)
+    return float(np.mean(np.any(rgb < 225, axis=-1)))
+
+
 def test_chair_precompute_play_and_sheet(tmp_path, capsys):
     out = tmp_path / "chair.npz"
     assert main(["precompute-modes", "builtin:chair", "-o", str(out), "-r", "16", "--fix", "default",
@@ -38,11 +44,15 @@ def test_chair_precompute_play_and_sheet(tmp_path, capsys):
                  "-o", str(gif), "-q"]) == 0
     import imageio.v2 as imageio
 
-    assert len(imageio.mimread(gif)) == 5
+    gif_frames = imageio.mimread(gif)
+    assert len(gif_frames) == 5
+    assert all(_drawn_fraction(f) > 0.02 for f in gif_frames)      # the chair is drawn in every frame
     sheet = tmp_path / "sheet.png"
     assert main(["modes-sheet", str(out), "-o", str(sheet), "-n", "2", "-q"]) == 0
     img = imageio.imread(sheet)
     assert img.ndim == 3 and img.shape[1] > img.shape[0]
+    half = img.shape[1] // 2                                          # two panels side by side, both drawn
+    assert _drawn_fraction(img[:, :half]) > 0.02 and _drawn_fraction(img[:, half:]) > 0.02
 
 
 def test_bridge_modes_and_playback_frames(tmp_path):
@@ -53,7 +63,11 @@ def test_bridge_modes_and_playback_frames(tmp_path):
     _render_ok()
     frames = tmp_path / "frames"
     assert main(["play", str(out), "--mode", "1", "--duration", "0.2", "--fps", "10", "-o", str(frames), "-q"]) == 0
-    assert len(list(frames.glob("frame_*.png"))) == 3
+    pngs = sorted(frames.glob("frame_*.png"))
+    assert len(pngs) == 3
+    import imageio.v2 as imageio
+
+    assert all(_drawn_fraction(imageio.imread(f)) > 0.02 for f in pngs)   # the bridge is drawn
 
 
 def test_batch_via_cli(tmp_path):

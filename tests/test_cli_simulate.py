@@ -71,6 +71,9 @@ def test_ground_contact_and_corotational(tmp_path):
 def test_bad_arguments(tmp_path, capsys):
     assert main(["simulate", *BEAM, "--duration", "1", "--dt", "0.1", "-o", str(tmp_path / "x.txt")]) == 2
     assert main(["simulate", *BEAM, "--duration", "1", "--dt", "-0.1", "-o", str(tmp_path / "x.npz")]) == 2
+    assert "--dt must be > 0" in capsys.readouterr().err
+    assert main(["simulate", *BEAM, "--duration", "nan", "--dt", "0.1", "-o", str(tmp_path / "x.npz")]) == 2
+    assert "--duration must be > 0 and finite" in capsys.readouterr().err
     assert main(["simulate", *BEAM, "--duration", "0.01", "--dt", "0.001", "--impulse", "99999", "0", "0", "1",
                  "-o", str(tmp_path / "x.npz")]) == 2
     assert "--impulse VERTEX" in capsys.readouterr().err
@@ -114,3 +117,15 @@ def test_xpbd_refuses_options_it_does_not_support(tmp_path, capsys):
                "--duration", "0.1", "-o", str(tmp_path / "x.npz")])
     assert rc == 2 and "--ground" in capsys.readouterr().err
     assert not (tmp_path / "x.npz").exists()
+
+
+def test_element_option_lists_the_library_elements(capsys):
+    from sc_fem.elements import DEFAULT_ELEMENT, ELEMENTS
+
+    with pytest.raises(SystemExit):
+        main(["simulate", *BEAM, "--element", "p2", "--duration", "0.01", "--dt", "0.001", "-o", "x.npz"])
+    err = capsys.readouterr().err
+    assert all(e in err for e in ELEMENTS)
+    with pytest.raises(SystemExit):
+        main(["simulate", "--help"])
+    assert f"(default {DEFAULT_ELEMENT})" in capsys.readouterr().out

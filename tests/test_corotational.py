@@ -2,18 +2,30 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
+import pytest
 from scipy.linalg import polar
 
 from sc_fem.elements import element_stiffness
 from sc_fem.integrators import record
+from sc_fem.integrators import corotational as corot_mod
 from sc_fem.integrators.corotational import Corotational, cube_rotations, polar_rotation
+from sc_fem.integrators.loads import Gravity, LoadSet
 from sc_fem.integrators.newmark import Newmark
 from sc_fem.lattice import HEX_CORNERS, CubeModel
 
 
 def bar():
     return CubeModel.box((6, 2, 2), 0.05, youngs=1e6, poisson=0.3, density=1000.0)
+
+
+def mixed_bar(seed=7):
+    """The bar with a different (E, nu) in every cube, like a voxelized model."""
+    m = bar()
+    r = np.random.default_rng(seed)
+    return dataclasses.replace(m, youngs=1e6 * (0.5 + r.random(m.n_cubes)), poisson=0.05 + 0.4 * r.random(m.n_cubes))
 
 
 def rot(axis, angle):
@@ -40,13 +52,95 @@ def oracle_force(model, u):
     return f
 
 
-def test_internal_force_matches_loop_oracle(rng):
-    m = bar()
+def oracle_warped(model, u, element="q1i"):
+    """Loop over cubes: R = polar(F) at the centre, block-diagonal R24 (24, 24), R24 K_e R24^T."""
+    lam, mu = model.lame()
+    dN = (2.0 * HEX_CORNERS - 1.0) / 4.0 / model.h
+    out = np.empty((model.n_cubes, 24, 24))
+    for e in range(model.n_cubes):
+        x = model.nodes_m[model.hexes[e]] + u[model.hexes[e]]
+        R, _ = polar(sum(np.outer(x[a], dN[a]) for a in range(8)))
+        R24 = np.kron(np.eye(8), R)
+        Ke = element_stiffness(element, lam[e:e + 1], mu[e:e + 1], model.h)[0]
+        out[e] = R24 @ Ke @ R24.T
+    return out
+
+
+@pytest.mark.parametrize("model", [bar, mixed_bar])
+def test_internal_force_matches_loop_oracle(rng, model):
+    m = model()
     integ = Corotational(m, 1e-3)
     u = 0.01 * rng.standard_normal((m.n_nodes, 3)) + ((rot([1, 2, 3], 0.7) - np.eye(3)) @ m.nodes_m.T).T
     got = integ.asm.expand(integ.internal_force(integ.asm.restrict(u)))
     want = oracle_force(m, u)
     np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9 * np.abs(want).max())
+
+
+@pytest.mark.parametrize("element", ["q1i", "q1"])
+def test_warped_matrices_match_loop_oracle(rng, element):
+    m = mixed_bar()
+    integ = Corotational(m, 1e-3, element=element)
+    u = 0.02 * rng.standard_normal((m.n_nodes, 3)) + ((rot([-1, 2, 0.5], 1.1) - np.eye(3)) @ m.nodes_m.T).T
+    _, R = integ._corners(integ.asm.restrict(u))
+    got = integ.warped_matrices(R)
+    want = oracle_warped(m, u, element)
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9 * np.abs(want).max())
+    # and the assembled tangent is their sum
+    np.testing.assert_allclose(integ.tangent(integ.asm.restrict(u)).toarray(),
+                               integ.asm.stiffness(element_matrices=want).toarray(),
+                               atol=1e-9 * np.abs(want).max())
+
+
+def test_tangent_is_exact_jacobian_at_a_rigid_rotation(rng):
+    """At a rigidly rotated (strain-free) state the neglected dR/dx terms vanish (K_e annihilates
+    infinitesimal rotations), so the warped stiffness is the Jacobian of the force."""
+    m = mixed_bar()
+    integ = Corotational(m, 1e-3)
+    c = m.nodes_m.mean(axis=0)
+    u = (m.nodes_m - c) @ rot([0.4, -1.0, 0.7], 1.3).T + c - m.nodes_m
+    uf = integ.asm.restrict(u)
+    K = integ.tangent(uf).toarray()
+    eps = 1e-7 * m.h
+    cols = rng.choice(len(uf), 12, replace=False)
+    for j in cols:                                      # central differences on a few columns
+        d = np.zeros_like(uf)
+        d[j] = eps
+        fd = (integ.internal_force(uf + d) - integ.internal_force(uf - d)) / (2 * eps)
+        np.testing.assert_allclose(fd, K[:, j], atol=1e-6 * np.abs(K).max())
+
+
+def test_rotations_computed_once_per_state(monkeypatch):
+    """energy() after a step and the next step's tangent share one polar decomposition, HHT's
+    force at u_n reuses the tangent's; results equal those without any cache."""
+    m = bar()
+    fixed = np.flatnonzero(m.node_index[:, 0] == 0)
+    calls = []
+    real = corot_mod.cube_rotations
+    monkeypatch.setattr(corot_mod, "cube_rotations", lambda xe, h: calls.append(1) or real(xe, h))
+
+    def run(alpha, nocache):
+        integ = Corotational(m, 2e-3, fixed_nodes=fixed, loads=LoadSet(m, [Gravity()]), alpha=alpha, iterations=3)
+        if nocache:                                     # forget the rotations before every use
+            orig = integ._corners
+            integ._corners = lambda u: (setattr(integ, "_cache_R", None), orig(u))[1]
+        integ.step()
+        e0 = integ.energy().elastic
+        calls.clear()
+        integ.step()
+        n_step = len(calls)
+        calls.clear()
+        e1 = integ.energy().elastic
+        return n_step, len(calls), e0, e1, integ._u
+
+    for alpha in (0.0, -0.2):
+        n_step, n_energy, e0, e1, u = run(alpha, nocache=False)
+        # tangent(u_n) (and HHT's f_int(u_n)) reuse energy()'s rotations: one per iterate only
+        assert n_step == 3
+        assert n_energy == 1
+        n_step_nc, _, e0_nc, e1_nc, u_nc = run(alpha, nocache=True)
+        assert n_step_nc == 4 + (alpha != 0)
+        assert (e0, e1) == (e0_nc, e1_nc)
+        np.testing.assert_array_equal(u, u_nc)
 
 
 def test_polar_rotation_is_proper_rotation(rng):

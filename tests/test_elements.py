@@ -172,6 +172,24 @@ def test_q1i_homogeneous_in_lame_and_batched():
     assert E.q1i_unit_stiffness(0.5).shape == (24, 24)
 
 
+@pytest.mark.parametrize("element", E.ELEMENTS)
+@pytest.mark.parametrize("precompute", [2048, 3])
+def test_stiffness_chunks_match_loop_oracle(element, precompute, monkeypatch):
+    """Chunked values == per-cube oracle, for q1i both with all unit matrices built once (few
+    distinct nu) and per chunk (more distinct nu than ``_Q1I_PRECOMPUTE``)."""
+    monkeypatch.setattr(E, "_Q1I_PRECOMPUTE", precompute)
+    rng = np.random.default_rng(5)
+    nu = rng.choice([0.1, 0.3, 0.3, 0.45, -0.2, 0.0, 0.25], size=9)    # repeats and > 3 distinct
+    mu = rng.uniform(0.5, 2.0, size=9)
+    lam = 2 * mu * nu / (1 - 2 * nu)
+    values = E.stiffness_chunks(element, lam, mu, 0.7)
+    for s, e in ((0, 4), (4, 9)):                                        # two chunks
+        got = values(s, e).reshape(-1, 24, 24)
+        for k in range(s, e):                                            # loop: oracle per cube
+            ref = 0.7 * ORACLES[element](lam[k], mu[k])
+            assert np.abs(got[k - s] - ref).max() <= 1e-12 * np.abs(ref).max()
+
+
 def test_q1i_is_softer_than_q1_in_bending():
     """Incompatible modes only add deformation freedom: K_q1 - K_q1i is PSD and nonzero."""
     d = E.element_stiffness("q1", [1.0], [1.0], 1.0)[0] - E.element_stiffness("q1i", [1.0], [1.0], 1.0)[0]
@@ -184,4 +202,4 @@ def test_bad_element_names():
         E.check_element("q2")
     with pytest.raises(InputError, match="not linear"):
         E.reference_stiffness("q1i")
-    assert E.DEFAULT_ELEMENT in E.ELEMENTS
+    assert E.check_element(E.DEFAULT_ELEMENT.upper()) == E.DEFAULT_ELEMENT    # case-insensitive

@@ -59,7 +59,25 @@ def test_round_trip_of_a_mesh_basis_without_lattice(tmp_path):
     r = load_modes(p)
     assert r.lattice is None and r.source == "builtin:chair" and len(r.source_sha256) == 64
     np.testing.assert_allclose(r.modes, b.modes, rtol=1e-6, atol=1e-6 * np.abs(b.modes).max())
-    assert not list(tmp_path.glob(".*tmp*"))                 # atomic write leaves no temporary file
+    assert list(tmp_path.iterdir()) == [p]
+
+
+def test_interrupted_write_leaves_no_file_and_keeps_the_old_one(tmp_path, basis, monkeypatch):
+    def fail(*args, **kwargs):
+        raise OSError("disk full (simulated)")
+
+    target = tmp_path / "m.npz"
+    with monkeypatch.context() as mp:
+        mp.setattr(np, "savez_compressed", fail)
+        with pytest.raises(OSError, match="disk full"):
+            save_modes(basis, target)
+    assert list(tmp_path.iterdir()) == []                    # neither the target nor a temporary file
+    save_modes(basis, target)
+    before = target.read_bytes()
+    monkeypatch.setattr(np, "savez_compressed", fail)
+    with pytest.raises(OSError, match="disk full"):
+        save_modes(basis, target)                            # a failed overwrite keeps the old file intact
+    assert list(tmp_path.iterdir()) == [target] and target.read_bytes() == before
 
 
 def test_truncated_file(saved, tmp_path):

@@ -91,12 +91,49 @@ def test_step_load_matches_modal_reference():
     assert np.abs(rec.u - ref).max() < 2e-3 * np.abs(ref).max()
 
 
-def test_hht_alpha_zero_is_newmark():
+def test_hht_tends_to_newmark_as_alpha_tends_to_zero():
+    """alpha = 0 is the default, so compare a tiny non-zero alpha (the HHT branch runs, with the HHT
+    beta = (1 - alpha)^2 / 4, gamma = 1/2 - alpha) against plain average-acceleration Newmark."""
     m, fx = cantilever(4, 1)
     ld = LoadSet(m, [Gravity(G)])
-    a = record(Newmark(m, 1e-3, fixed_nodes=fx, loads=ld, alpha=0.0), 50).u[-1]
+    hht = Newmark(m, 1e-3, fixed_nodes=fx, loads=ld, alpha=-1e-9)
+    assert hht.beta != 0.25 and hht.gamma != 0.5
+    a = record(hht, 50).u[-1]
     b = record(Newmark(m, 1e-3, fixed_nodes=fx, loads=ld), 50).u[-1]
-    np.testing.assert_allclose(a, b, rtol=0, atol=1e-14)
+    assert not np.array_equal(a, b)                       # the HHT terms did change the result ...
+    np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-6 * np.abs(b).max())   # ... by O(alpha)
+
+
+def test_load_patterns_match_the_dense_scatter(rng):
+    """Vertex forces and face pressures (sparse rows of W, repeated vertices and faces included)
+    equal W^T applied to the dense per-vertex force array built with np.add.at."""
+    import trimesh
+
+    from sc_fem.embed import embed
+    from sc_fem.integrators.loads import FacePressure, VertexForce
+    from sc_fem.voxelize import voxelize
+
+    mesh = trimesh.creation.box(extents=[0.4, 0.2, 0.1])
+    model = voxelize(mesh, resolution=6, youngs=1e6, poisson=0.3, density=500.0, fill="solid")
+    pts, tri = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    W = embed(model, pts)
+    idx = np.array([0, 3, 3, 5, 0])                       # repeated vertices add up
+    f = rng.standard_normal((len(idx), 3))
+    fidx = np.array([1, 4, 4, 7])                         # repeated faces add up
+    pr = rng.uniform(1.0, 2.0, len(fidx))
+    ld = LoadSet(model, [VertexForce(idx, f), FacePressure(fidx, pr)], points=pts, faces=tri, W=W)
+    vf = np.zeros((len(pts), 3))
+    np.add.at(vf, idx, f)
+    vp = np.zeros((len(pts), 3))
+    for p_k, face in zip(pr, fidx):                       # slow oracle: one face at a time
+        a, b, c = pts[tri[face]]
+        an = 0.5 * np.cross(b - a, c - a) * model.scale**2
+        for vert in tri[face]:
+            vp[vert] += -p_k * an / 3.0
+    expected = np.asarray(W.T @ vf) + np.asarray(W.T @ vp)
+    np.testing.assert_allclose(ld.force(0.0), expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
+    # the total force is kept (the rows of W sum to 1): sum of the vertex forces + pressures
+    np.testing.assert_allclose(ld.force(0.0).sum(axis=0), vf.sum(axis=0) + vp.sum(axis=0), rtol=1e-12, atol=1e-12)
 
 
 def test_long_time_limit_is_static_solution():
@@ -131,6 +168,19 @@ def test_cantilever_gravity_sag_dynamic_and_beam_theory():
     sag = st.u[tip, 2].mean()
     assert abs(sag / static - 1.0) < 1e-3
     assert abs(-sag / eb - 1.0) < 0.10
+
+
+def test_energy_is_evaluated_only_when_checked_or_yielded(monkeypatch):
+    m, fx = cantilever(4, 1)
+    integ = Newmark(m, 1e-3, fixed_nodes=fx, loads=LoadSet(m, [Gravity(G)]))
+    calls = []
+    energy = integ.energy
+    monkeypatch.setattr(integ, "energy", lambda: calls.append(1) or energy())
+    states = list(simulate(integ, 20, every=5, check=False))
+    assert [s.step for s in states] == [0, 5, 10, 15, 20] and len(calls) == 5
+    assert np.all(np.isfinite([s.energy for s in states]))
+    list(simulate(integ, 20, every=5, check=True))
+    assert len(calls) == 5 + 21                            # the check needs it at every step
 
 
 def test_invalid_parameters():

@@ -160,11 +160,14 @@ def test_rigid_motion_pipeline_on_rigid_only_curves():
     rot = Rotation.from_rotvec(np.outer(t, [0.3, 0.5, 0.8]))
     curves = np.stack([rot[i].apply(shape) + [t[i], -2 * t[i], 0.5] for i in range(11)])[:, None]
     m = R.fit(curves[::2], t[::2], rigid_interpolation="linear")
-    rm = m.rigid
-    np.testing.assert_allclose(m.evaluate(t), rm.to_world(m.evaluate_aligned(t), t), atol=1e-14)
     # the aligned shape is static; the only error left is the model's (a constant is not exactly
-    # in the span of exp(+-at), sin(at), cos(at)), small against the curve size
-    assert np.abs(m.evaluate(t) - curves).max() < 1e-4
+    # in the span of exp(+-at), sin(at), cos(at)) and the Kabsch tie-break bias, small against the
+    # curve size D (measured max error / D: 1.4e-8 at fitted, 1.7e-6 at skipped frames, where the
+    # SLERP + linear-anchor interpolation is exact for this uniform rotation and linear drift)
+    D = float(np.linalg.norm(np.ptp(shape, axis=0)))
+    err = np.abs(m.evaluate(t) - curves).max(axis=(1, 2, 3))
+    assert err[::2].max() < 1e-7 * D
+    assert err[1::2].max() < 1e-5 * D
     # without rigid removal the same model does much worse on this motion
     m0 = R.fit(curves[::2], t[::2], remove_rigid=False)
     assert np.abs(m0.evaluate(t) - curves).max() > 10 * np.abs(m.evaluate(t) - curves).max()
@@ -295,7 +298,6 @@ def test_pde_beats_linear_interpolation_on_swinging_curves():
     b = R.bspline_baseline(curves, t, np.arange(0, 11, 2), n_control=20)
     e_pde, e_bs = R.errors(curves, m.evaluate(t)), R.errors(curves, b.evaluate(t))
     assert e_pde.mean_E_A < e_bs.mean_E_A
-    assert 0.05 < m.alpha < np.pi / 0.2 + 1e-9
 
 
 # ----------------------------------------------------------------------------- mesh mapping
@@ -322,7 +324,8 @@ def test_extract_curves_along_principal_axis():
     idx = R.extract_curves(verts, n_curves=6, n_points=20)
     assert idx.shape == (6, 20) and idx.min() >= 0 and idx.max() < 2000
     y = verts[idx, 1]
-    assert np.all(np.abs(np.diff(np.sign(np.diff(y, axis=1)).sum(axis=1))) <= 2)  # monotone in y
+    d = np.diff(y, axis=1)
+    assert np.all((d >= 0).all(axis=1) | (d <= 0).all(axis=1))                  # monotone in y
     assert np.all(np.abs(np.diff(y, axis=1)) < 2.0)
 
 
@@ -336,6 +339,7 @@ def test_extract_curves_along_principal_axis():
     (dict(times=np.array([0, 1, 1, 2, 3, 4.0])), "strictly increasing"),
     (dict(parametrization="chord"), "parametrization"),
     (dict(u=np.zeros(7)), "u must have shape"),
+    (dict(u=np.linspace(0.0, 2.0, 20)), r"u must have values in \[0, 1\]"),
     (dict(r=-1.0), "r must be"),
     (dict(alpha=np.nan), "alpha must be"),
     (dict(criterion="aic"), "criterion"),

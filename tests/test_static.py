@@ -129,8 +129,10 @@ def test_floating_model_under_load_is_a_clear_error():
     # fixed nodes on one line leave a rotation free
     with pytest.raises(SolverError, match="rigid motion"):
         solve_static(model, fix="x<min+0 & y<min+0", forces=F)
-    # no load, no support: zero displacement
-    assert np.all(solve_static(model).displacements == 0)
+    # no load, no support: every node is an unloaded floating node, held at zero
+    res = solve_static(model)
+    assert res.n_floating_nodes == model.n_nodes and len(res.fixed_nodes) == 0
+    assert np.all(res.displacements == 0)
 
 
 def test_unloaded_floating_part_is_held_loaded_one_is_an_error():

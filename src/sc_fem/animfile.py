@@ -54,6 +54,8 @@ class Animation:
         Joules (NaN where not computed).
     meta : dict
         Free-form provenance (JSON-serialisable).
+    curves : ndarray, shape (T, C, P, 3), or None
+        Optional curves on the surface (model units), None if the file has none.
     """
 
     faces: np.ndarray
@@ -62,6 +64,7 @@ class Animation:
     positions: np.ndarray
     energy: np.ndarray
     meta: dict = field(default_factory=dict)
+    curves: np.ndarray | None = None
 
     @property
     def n_frames(self) -> int:
@@ -115,7 +118,8 @@ def load_animation(path) -> Animation:
     Raises
     ------
     ModeFileError
-        Missing, truncated, corrupted, foreign (not an sc_fem animation) or wrong-version file.
+        Missing, truncated, corrupted, foreign (not an sc_fem animation) or wrong-version file,
+        or an optional ``curves`` array of the wrong shape or with non-finite values.
     """
     path = Path(path)
     data = read_versioned_npz(path, kind=ANIMATION_KIND, version=ANIMATION_FORMAT_VERSION,
@@ -131,6 +135,17 @@ def load_animation(path) -> Animation:
         raise ModeFileError(f"{path}: {exc}") from None
     if not (np.all(np.isfinite(positions)) and np.all(np.isfinite(rest)) and np.all(np.isfinite(times))):
         raise ModeFileError(f"{path}: non-finite positions, rest vertices or times")
+    curves = None
+    if "curves" in data:
+        curves = data["curves"]
+        if (curves.ndim != 4 or curves.shape[0] != len(times) or curves.shape[-1] != 3
+                or not np.issubdtype(curves.dtype, np.number)):
+            raise ModeFileError(f"{path}: curves must have shape ({len(times)}, C, P, 3), got "
+                                f"{curves.dtype} {curves.shape}")
+        curves = curves.astype(np.float64, copy=False)
+        if not np.all(np.isfinite(curves)):
+            raise ModeFileError(f"{path}: curves contain {int(np.count_nonzero(~np.isfinite(curves)))} "
+                                "non-finite value(s)")
     meta = json.loads(str(data.get("meta_json", "{}")))
     return Animation(faces=faces, rest_vertices=rest, times=times, positions=positions,
-                     energy=energy, meta=meta)
+                     energy=energy, meta=meta, curves=curves)

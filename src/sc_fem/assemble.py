@@ -25,7 +25,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .elements import CENTRE_RULE, DEFAULT_ELEMENT, check_element, reference_mass, stiffness_values
+from ._validate import as_float_array
+from .elements import CENTRE_RULE, DEFAULT_ELEMENT, check_element, reference_mass, stiffness_chunks
 from .errors import InputError
 from .lattice import HEX_CORNERS, CubeModel
 
@@ -52,6 +53,16 @@ def _check_fixed(fixed_dofs, n_dofs: int) -> np.ndarray:
     if arr.min() < 0 or arr.max() >= n_dofs:
         raise InputError(f"fixed_dofs must lie in [0, {n_dofs}), got range [{arr.min()}, {arr.max()}]")
     return np.unique(arr.astype(np.int64))
+
+
+def _per_cube(value, name: str, n: int, *, scalar: bool = True) -> np.ndarray:
+    """A finite per-cube array of shape (n,); a scalar is repeated when ``scalar``."""
+    arr = as_float_array(value, name)
+    if scalar and arr.ndim == 0:
+        return np.full(n, float(arr))
+    if arr.shape != (n,):
+        raise InputError(f"{name} must have shape ({n},){' or be a scalar' if scalar else ''}, got {arr.shape}")
+    return arr
 
 
 class Assembler:
@@ -87,7 +98,6 @@ class Assembler:
         self.fixed_dofs = _check_fixed(fixed_dofs, 3 * m)
         free = np.ones(3 * m, dtype=bool)
         free[self.fixed_dofs] = False
-        self.free_mask = free
         self.free_dofs = np.flatnonzero(free)
         self._build(free)
 
@@ -202,13 +212,11 @@ class Assembler:
             return self._scatter(lambda s, e: flat[s:e])
         from .material import lame
 
-        E = self.model.youngs if youngs is None else np.broadcast_to(np.asarray(youngs, dtype=float), (n,))
-        nu = self.model.poisson if poisson is None else np.broadcast_to(np.asarray(poisson, dtype=float), (n,))
-        if np.shape(E) != (n,) or np.shape(nu) != (n,):
-            raise InputError(f"youngs and poisson must have shape ({n},)")
+        E = self.model.youngs if youngs is None else _per_cube(youngs, "youngs", n)
+        nu = self.model.poisson if poisson is None else _per_cube(poisson, "poisson", n)
         lam, mu = lame(E, nu)
         h = self.model.h
-        return self._scatter(lambda s, e: stiffness_values(self.element, lam[s:e], mu[s:e], h))
+        return self._scatter(stiffness_chunks(self.element, lam, mu, h))
 
     def mass(self, *, lumped: bool = False, masses=None) -> sp.csr_matrix:
         """Assemble ``M`` (kg).
@@ -223,12 +231,9 @@ class Assembler:
             Per-cube masses in kg; default ``model.mass`` (the voxelizer's sample mass).
         """
         n = self.model.n_cubes
-        mass = self.model.mass if masses is None else np.asarray(masses, dtype=float)
-        if mass.shape != (n,):
-            raise InputError(f"masses must have shape ({n},), got {mass.shape}")
+        mass = self.model.mass if masses is None else _per_cube(masses, "masses", n, scalar=False)
         if lumped:
-            nm = np.bincount(self.model.hexes.ravel(), weights=np.repeat(mass / 8.0, 8),
-                             minlength=self.model.n_nodes)
+            nm = self.model.node_masses(mass)
             return sp.diags(np.repeat(nm, 3)[self.free_dofs]).tocsr()
         mref = reference_mass().ravel()
         return self._scatter(lambda s, e: mass[s:e, None] * mref[None, :])

@@ -87,26 +87,27 @@ def precompute_one(mesh: str, output: str, options: dict) -> dict:
     output : str
         Mode file to write.
     options : dict
-        Keyword arguments of :func:`sc_fem.modal.modal` (plus ``fix_default=True`` to expand
-        ``"default"`` fix specs for built-in models).
+        Keyword arguments of :func:`sc_fem.modal.modal`; a ``"default"`` entry of ``fix`` is
+        replaced by the built-in model's supports (:func:`sc_fem.models.expand_fix`).
     """
     t0 = time.perf_counter()
     row: dict[str, Any] = {k: "" for k in SUMMARY_FIELDS}
     row.update(mesh=mesh, output=output)
     try:
+        from .errors import BoundaryConditionError
         from .mesh import load_mesh
         from .modal import modal
         from .modefile import save_modes
+        from .models import expand_fix
 
         opts = dict(options)
-        src = load_mesh(mesh)
         fix = opts.pop("fix", None)
-        if fix:
-            from .models import expand_fix
-
-            fix = expand_fix(list(fix), str(src.metadata.get("source", "")))
-        fix_vertices = opts.pop("fix_vertices", None)
-        basis = modal(src, fix=fix or None, fix_vertices=fix_vertices, **opts)
+        try:
+            fix = expand_fix(list(fix), mesh) if fix else None
+        except BoundaryConditionError:   # "default" on a file: report an unreadable file first
+            load_mesh(mesh)
+            raise
+        basis = modal(mesh, fix=fix, **opts)              # modal loads the mesh (once)
         save_modes(basis, output)
         f = basis.frequencies[~basis.rigid]
         row.update(status="ok", cubes=basis.n_cubes, dofs=basis.n_dofs, n_modes=basis.n_modes,
@@ -136,7 +137,8 @@ def write_summary(rows: list[dict], path) -> Path:
 
 
 def run_batch(meshes, out_dir, *, options: dict | None = None, scheduler: str | None = None,
-              n_workers: int | None = None, processes: bool = True, progress: bool = True) -> BatchResult:
+              n_workers: int | None = None, processes: bool = True, progress: bool = True,
+              expand: bool = True) -> BatchResult:
     """Precompute modes for many meshes, one Dask task per mesh.
 
     Parameters
@@ -155,6 +157,8 @@ def run_batch(meshes, out_dir, *, options: dict | None = None, scheduler: str | 
         Local workers as processes (default) or threads.
     progress : bool
         tqdm progress bar on stderr.
+    expand : bool
+        Expand ``meshes`` with :func:`expand_inputs` (``False``: they are already expanded paths).
 
     Returns
     -------
@@ -169,7 +173,7 @@ def run_batch(meshes, out_dir, *, options: dict | None = None, scheduler: str | 
             raise InputError("--scheduler needs dask.distributed, which is not installed: "
                              "pip install 'sc_fem[batch]'") from None
         Client = None                                     # serial fallback, same rows and summary
-    meshes = expand_inputs(meshes)
+    meshes = expand_inputs(meshes) if expand else [str(m) for m in meshes]
     if not meshes:
         raise InputError("no meshes given")
     out = Path(out_dir)

@@ -134,7 +134,7 @@ def read_vertex_file(path) -> np.ndarray:
 
 
 def fixed_nodes(model: CubeModel, fix: Iterable[Fix] | Fix | None = None, *, vertices=None,
-                mesh_vertices=None) -> np.ndarray:
+                mesh_vertices=None, mesh_embedding=None) -> np.ndarray:
     """Indices of the lattice nodes to hold fixed.
 
     Parameters
@@ -146,8 +146,10 @@ def fixed_nodes(model: CubeModel, fix: Iterable[Fix] | Fix | None = None, *, ver
     vertices : array_like of int, shape (k,), optional
         Indices into ``mesh_vertices`` of source-mesh vertices whose cubes' nodes are fixed.
     mesh_vertices : array_like, shape (V, 3), optional
-        Source-mesh vertex positions in model units (needed with ``vertices``). Passing
-        ``mesh_vertices`` without ``vertices`` fixes the cubes of all of them.
+        Source-mesh vertex positions in model units (needed with ``vertices``, ignored without).
+    mesh_embedding : sc_fem.embed.Embedding, optional
+        The embedding of all ``V`` source-mesh vertices, if the caller already has it (then
+        ``mesh_vertices`` is not needed and the vertices are not located again).
 
     Returns
     -------
@@ -191,23 +193,24 @@ def fixed_nodes(model: CubeModel, fix: Iterable[Fix] | Fix | None = None, *, ver
                 f"{name} selects no node (nodes span x [{lo[0]:g}, {hi[0]:g}], y [{lo[1]:g}, {hi[1]:g}], "
                 f"z [{lo[2]:g}, {hi[2]:g}] model units)")
         mask |= sel
-    if vertices is not None or mesh_vertices is not None:
-        if mesh_vertices is None:
+    if vertices is not None:
+        if mesh_vertices is None and mesh_embedding is None:
             raise BoundaryConditionError("vertices= needs mesh_vertices= (the source-mesh vertex positions)")
-        mv = as_points(mesh_vertices, "mesh_vertices")
-        if vertices is None:
-            idx = np.arange(len(mv))
+        mv = None if mesh_embedding is not None else as_points(mesh_vertices, "mesh_vertices")
+        n_v = len(mesh_embedding.cube) if mv is None else len(mv)
+        idx = np.asarray(vertices)
+        if idx.ndim != 1 or idx.size == 0 or not np.issubdtype(idx.dtype, np.integer):
+            raise BoundaryConditionError(f"vertices must be a non-empty 1-D integer array, got {idx.dtype} {idx.shape}")
+        if idx.min() < 0 or idx.max() >= n_v:
+            raise BoundaryConditionError(
+                f"vertex indices must lie in [0, {n_v}) for a mesh of {n_v} vertices, "
+                f"got range [{idx.min()}, {idx.max()}]")
+        if mv is None:
+            cubes = mesh_embedding.cube[idx]
         else:
-            idx = np.asarray(vertices)
-            if idx.ndim != 1 or idx.size == 0 or not np.issubdtype(idx.dtype, np.integer):
-                raise BoundaryConditionError(f"vertices must be a non-empty 1-D integer array, got {idx.dtype} {idx.shape}")
-            if idx.min() < 0 or idx.max() >= len(mv):
-                raise BoundaryConditionError(
-                    f"vertex indices must lie in [0, {len(mv)}) for a mesh of {len(mv)} vertices, "
-                    f"got range [{idx.min()}, {idx.max()}]")
-        from .embed import embedding
+            from .embed import embedding
 
-        cubes = embedding(model, mv[idx]).cube     # the cube each vertex is embedded in (as W)
+            cubes = embedding(model, mv[idx]).cube     # the cube each vertex is embedded in (as W)
         mask[model.hexes[cubes].ravel()] = True
     return np.flatnonzero(mask)
 

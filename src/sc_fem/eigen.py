@@ -22,7 +22,9 @@ and uses shift-invert when it fits in ``max_memory`` (default: half the availabl
 otherwise LOBPCG; the choice and the reason are returned in :attr:`EigenResult.reason`.
 
 All eigenvalues are refined and the vectors made exactly ``M``-orthonormal by a final
-Rayleigh--Ritz step on the computed subspace.
+Rayleigh--Ritz step on the computed subspace, whose products ``K V``, ``M V`` also give the
+residuals. :class:`EigenSolver` keeps the factorization (or AMG hierarchy) between solves, so
+asking again for more eigenpairs costs no second setup; :func:`solve_eigen` is the one-shot form.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator, eigsh
 
+from ._validate import positive_int
 from .errors import InputError, SolverError
 
 METHODS: tuple[str, ...] = ("auto", "shift-invert", "lobpcg")
@@ -71,9 +74,13 @@ class EigenResult:
     reason : str
         Why ``method`` was chosen (memory estimate vs budget).
     seconds : dict
-        Wall time of ``"setup"`` (factorization or AMG hierarchy) and ``"solve"``.
+        Wall time of ``"setup"`` (factorization or AMG hierarchy, done once per :class:`EigenSolver`),
+        ``"solve"`` and ``"rayleigh_ritz"``.
     info : dict
-        Iterations, memory estimate (bytes), etc.
+        Iterations, memory estimate (bytes), ``setup_reused`` (the factorization / hierarchy of an
+        earlier :meth:`EigenSolver.solve` was used), etc.
+    residuals : ndarray, shape (k,)
+        ``||K phi - lambda M phi|| / ||K phi||`` of each pair (:func:`relative_residuals`).
     """
 
     eigenvalues: np.ndarray
@@ -84,6 +91,7 @@ class EigenResult:
     reason: str
     seconds: dict = field(default_factory=dict)
     info: dict = field(default_factory=dict)
+    residuals: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 def lambda_scale(K: sp.spmatrix, M: sp.spmatrix) -> float:
@@ -149,8 +157,14 @@ def rigid_body_modes(points: np.ndarray, free_dofs: np.ndarray | None = None) ->
     return B if free_dofs is None else B[free_dofs]
 
 
-def rayleigh_ritz(K, M, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Refine a subspace ``X`` (n, k): eigenpairs of ``(X^T K X, X^T M X)``, vectors ``M``-orthonormal."""
+def rayleigh_ritz(K, M, X: np.ndarray, k: int | None = None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Refine a subspace ``X`` (n, m): eigenpairs of ``(X^T K X, X^T M X)``, vectors ``M``-orthonormal.
+
+    Returns the ``k`` smallest (default all ``m``) eigenvalues ``lam`` (k,), vectors ``V`` (n, k),
+    and ``K V``, ``M V`` (n, k) -- obtained from ``K X``, ``M X`` at no extra sparse product, for
+    :func:`relative_residuals`.
+    """
     from scipy.linalg import eigh
 
     KX, MX = K @ X, M @ X
@@ -158,79 +172,33 @@ def rayleigh_ritz(K, M, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     G = X.T @ MX
     A, G = 0.5 * (A + A.T), 0.5 * (G + G.T)
     lam, C = eigh(A, G)
-    V = X @ C
-    return lam, V
+    C = C[:, :k]
+    return lam[:k], X @ C, KX @ C, MX @ C
 
 
-def _shift_invert(K, M, k: int, sigma: float, backend: str, tol: float, seed: int):
-    from .linsolve import factorize
+def relative_residuals(eigenvalues: np.ndarray, KV: np.ndarray, MV: np.ndarray, scale: float) -> np.ndarray:
+    """``||K phi - lambda M phi|| / ||K phi||`` per column from the products ``K V``, ``M V`` (n, k).
 
-    n = K.shape[0]
-    t0 = time.perf_counter()
-    A = (K - sigma * M).tocsr()
-    fac = factorize(A, backend)
-    t_setup = time.perf_counter() - t0
-    op = LinearOperator((n, n), matvec=fac.solve, matmat=fac.solve, dtype=np.float64)
-    v0 = np.random.default_rng(seed).standard_normal(n)
-    t0 = time.perf_counter()
-    ncv = min(n, max(2 * k + 1, k + 20))
-    try:
-        lam, X = eigsh(K, k=k, M=M, sigma=sigma, which="LM", OPinv=op, tol=tol, v0=v0, ncv=ncv,
-                       mode="normal")
-    except Exception as exc:  # ARPACK errors carry partial results; report them as solver errors
-        raise SolverError(f"eigsh (shift-invert, {fac.backend}) failed: {exc}") from None
-    return lam, X, fac.backend, {"setup": t_setup, "solve": time.perf_counter() - t0}, {}
+    For (near-)rigid modes, where ``K phi ~ 0``, the denominator is floored at
+    ``SHIFT_FRACTION * scale * ||M phi||`` (the size of the shift term; ``scale`` =
+    :func:`lambda_scale`), which is below ``||K phi||`` for every elastic mode.
+    """
+    r = np.linalg.norm(KV - MV * eigenvalues[None, :], axis=0)
+    den = np.maximum(np.linalg.norm(KV, axis=0), SHIFT_FRACTION * scale * np.linalg.norm(MV, axis=0))
+    return r / den
 
 
-def _lobpcg(K, M, k: int, sigma: float, B: np.ndarray | None, tol: float, maxiter: int, seed: int):
-    import pyamg
-    from scipy.sparse.linalg import lobpcg
+class EigenSolver:
+    """Smallest eigenpairs of ``K phi = lambda M phi`` with the shifted operator set up once.
 
-    n = K.shape[0]
-    t0 = time.perf_counter()
-    A = (K - sigma * M).tocsr()
-    ml = pyamg.smoothed_aggregation_solver(A, B=B, max_coarse=500, keep=False)
-    vcycle = ml.aspreconditioner(cycle="V")
-
-    def apply(X):
-        # pyamg's own block application is ~20x slower than column by column (measured)
-        X = np.asarray(X)
-        if X.ndim == 1:
-            return vcycle @ X
-        return np.column_stack([vcycle @ X[:, j] for j in range(X.shape[1])])   # loop over block columns
-
-    prec = LinearOperator((n, n), matvec=apply, matmat=apply, dtype=np.float64)
-    t_setup = time.perf_counter() - t0
-    rng = np.random.default_rng(seed)
-    m = min(n - 1, k + max(4, k // 4))        # a few extra vectors speed convergence
-    X = rng.standard_normal((n, m))
-    if B is not None:                          # start in the rigid space: those modes converge at once
-        X[:, :min(B.shape[1], m)] = B[:, :min(B.shape[1], m)]
-    t0 = time.perf_counter()
-    import warnings
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")        # lobpcg warns when it stops at maxiter; we report residuals
-        # lobpcg's tol is absolute on ||A x - mu M x|| (x M-normalized): scale it by the shift, the
-        # smallest eigenvalue scale we know, times the typical ||M x|| ~ sqrt(mean diag M)
-        tol_abs = tol * abs(sigma) * float(np.sqrt(np.mean(M.diagonal())))
-        lam, V, hist = lobpcg(A, X, B=M, M=prec, tol=tol_abs, maxiter=maxiter, largest=False,
-                              retResidualNormsHistory=True)
-    info = {"iterations": len(hist), "levels": len(ml.levels)}
-    return lam + sigma, V[:, np.argsort(lam)], "pyamg", {"setup": t_setup, "solve": time.perf_counter() - t0}, info
-
-
-def solve_eigen(K, M, k: int, *, method: str = "auto", backend: str = "auto", sigma: float | None = None,
-                near_null: np.ndarray | None = None, tol: float = 0.0, lobpcg_tol: float = 1e-3,
-                maxiter: int = 400, max_memory: float | None = None, seed: int = 0) -> EigenResult:
-    """Smallest ``k`` eigenpairs of ``K phi = lambda M phi``.
+    The first :meth:`solve` chooses the method (``"auto"``: from the memory estimates for its
+    ``k``) and builds the factorization of ``K - sigma M`` (shift-invert) or the AMG hierarchy
+    (LOBPCG); every later :meth:`solve` -- e.g. with more eigenpairs -- reuses it.
 
     Parameters
     ----------
     K, M : scipy.sparse matrix, shape (n, n)
         Symmetric stiffness (N/m, positive semi-definite) and mass (kg, positive definite).
-    k : int
-        Number of eigenpairs (``1 <= k < n``).
     method : {"auto", "shift-invert", "lobpcg"}
         See the module docstring.
     backend : {"auto", "cholmod", "cholespy", "splu"}
@@ -247,56 +215,131 @@ def solve_eigen(K, M, k: int, *, method: str = "auto", backend: str = "auto", si
         Rayleigh--Ritz step makes the eigenvalues much more accurate than the vectors.
     max_memory : float, optional
         Bytes the factorization may use (``method="auto"``); default half the available memory.
+    seed : int
+        Seed of the random start vectors.
+
+    Attributes
+    ----------
+    lambda_scale : float
+        :func:`lambda_scale` ``(K, M)``, 1/s^2 (computed once).
+    sigma : float
+        The shift, 1/s^2.
+    n_setups : int
+        Factorizations / AMG hierarchies built (0 before the first solve, then 1).
+    """
+
+    def __init__(self, K, M, *, method: str = "auto", backend: str = "auto", sigma: float | None = None,
+                 near_null: np.ndarray | None = None, tol: float = 0.0, lobpcg_tol: float = 1e-3,
+                 maxiter: int = 400, max_memory: float | None = None, seed: int = 0) -> None:
+        if method not in METHODS:
+            raise InputError(f"method must be one of {list(METHODS)}, got {method!r}")
+        if not (sp.issparse(K) and sp.issparse(M)) or K.shape != M.shape or K.shape[0] != K.shape[1]:
+            raise InputError("K and M must be square scipy.sparse matrices of the same shape")
+        self.K, self.M = sp.csr_matrix(K, dtype=float), sp.csr_matrix(M, dtype=float)
+        self.n = self.K.shape[0]
+        self.lambda_scale = lambda_scale(self.K, self.M)
+        if sigma is None:
+            sigma = -SHIFT_FRACTION * self.lambda_scale
+        elif not (np.isfinite(sigma) and sigma < 0):
+            raise InputError(f"sigma must be a negative shift (below every eigenvalue), got {sigma!r}")
+        self.sigma = float(sigma)
+        self.method, self.backend, self.reason = method, backend, ""
+        self.near_null, self.tol, self.lobpcg_tol, self.maxiter = near_null, tol, lobpcg_tol, maxiter
+        self.max_memory, self.seed = max_memory, seed
+        self.n_setups = 0
+        self._op = None                       # OPinv (shift-invert) or the V-cycle (LOBPCG)
+        self._setup_seconds = 0.0
+        self._info: dict = {}
+
+    def _setup(self, k: int) -> None:
+        t0 = time.perf_counter()
+        if self.method == "auto":
+            self.method, self.reason = choose_method(self.n, self.K.nnz, k, self.max_memory)
+        else:
+            self.reason = "requested"
+        A = (self.K - self.sigma * self.M).tocsr()
+        if self.method == "shift-invert":
+            from .linsolve import factorize
+
+            fac = factorize(A, self.backend)
+            self.backend = fac.backend
+            self._op = LinearOperator(A.shape, matvec=fac.solve, matmat=fac.solve, dtype=np.float64)
+        else:
+            import pyamg
+
+            self._A = A
+            ml = pyamg.smoothed_aggregation_solver(A, B=self.near_null, max_coarse=500, keep=False)
+            self._op = ml.aspreconditioner(cycle="V")
+            self.backend = "pyamg"
+            self._info["levels"] = len(ml.levels)
+        self._info["factor_memory_estimate"] = factor_memory_estimate(self.n, self.K.nnz)
+        self.n_setups += 1
+        self._setup_seconds = time.perf_counter() - t0
+
+    def _eigsh(self, k: int) -> tuple[np.ndarray, dict]:
+        v0 = np.random.default_rng(self.seed).standard_normal(self.n)
+        ncv = min(self.n, max(2 * k + 1, k + 20))
+        try:
+            _, X = eigsh(self.K, k=k, M=self.M, sigma=self.sigma, which="LM", OPinv=self._op, tol=self.tol,
+                         v0=v0, ncv=ncv, mode="normal")
+        except Exception as exc:  # ARPACK errors carry partial results; report them as solver errors
+            raise SolverError(f"eigsh (shift-invert, {self.backend}) failed: {exc}") from None
+        return X, {}
+
+    def _lobpcg(self, k: int) -> tuple[np.ndarray, dict]:
+        import warnings
+
+        from scipy.sparse.linalg import lobpcg
+
+        B = self.near_null
+        m = min(self.n - 1, k + max(4, k // 4))   # a few extra vectors speed convergence
+        X = np.random.default_rng(self.seed).standard_normal((self.n, m))
+        if B is not None:                          # start in the rigid space: those modes converge at once
+            X[:, :min(B.shape[1], m)] = B[:, :min(B.shape[1], m)]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")        # lobpcg warns when it stops at maxiter; we report residuals
+            # lobpcg's tol is absolute on ||A x - mu M x|| (x M-normalized): scale it by the shift, the
+            # smallest eigenvalue scale we know, times the typical ||M x|| ~ sqrt(mean diag M)
+            tol_abs = self.lobpcg_tol * abs(self.sigma) * float(np.sqrt(np.mean(self.M.diagonal())))
+            # the V-cycle goes in directly: scipy applies it to a block column by column
+            _, V, hist = lobpcg(self._A, X, B=self.M, M=self._op, tol=tol_abs, maxiter=self.maxiter,
+                                largest=False, retResidualNormsHistory=True)
+        return V, {"iterations": len(hist)}
+
+    def solve(self, k: int) -> EigenResult:
+        """The ``k`` smallest eigenpairs (``1 <= k < n``), refined by Rayleigh--Ritz, with residuals."""
+        k = positive_int(k, "k")
+        if k >= self.n:
+            raise InputError(f"k = {k} eigenpairs requested but the problem has only {self.n} DOFs (need k < n)")
+        reused = self._op is not None
+        if not reused:
+            self._setup(k)
+        t0 = time.perf_counter()
+        X, info = self._eigsh(k) if self.method == "shift-invert" else self._lobpcg(k)
+        secs = {"setup": self._setup_seconds, "solve": time.perf_counter() - t0}
+        t0 = time.perf_counter()
+        lam, X, KX, MX = rayleigh_ritz(self.K, self.M, np.asarray(X), k)
+        secs["rayleigh_ritz"] = time.perf_counter() - t0
+        if not (np.all(np.isfinite(lam)) and np.all(np.isfinite(X))):
+            raise SolverError(f"the eigensolver ({self.method}) returned non-finite values")
+        res = relative_residuals(lam, KX, MX, self.lambda_scale)
+        return EigenResult(eigenvalues=lam, vectors=X, method=self.method, backend=self.backend,
+                           sigma=self.sigma, reason=self.reason, seconds=secs,
+                           info={**self._info, **info, "setup_reused": reused}, residuals=res)
+
+
+def solve_eigen(K, M, k: int, *, method: str = "auto", backend: str = "auto", sigma: float | None = None,
+                near_null: np.ndarray | None = None, tol: float = 0.0, lobpcg_tol: float = 1e-3,
+                maxiter: int = 400, max_memory: float | None = None, seed: int = 0) -> EigenResult:
+    """Smallest ``k`` eigenpairs of ``K phi = lambda M phi``: ``EigenSolver(K, M, ...).solve(k)``.
+
+    The parameters are those of :class:`EigenSolver`; ``k`` is the number of eigenpairs
+    (``1 <= k < n``). Use :class:`EigenSolver` directly to solve again (e.g. for more pairs)
+    without a second factorization.
 
     Returns
     -------
     EigenResult
     """
-    if method not in METHODS:
-        raise InputError(f"method must be one of {list(METHODS)}, got {method!r}")
-    if not (sp.issparse(K) and sp.issparse(M)) or K.shape != M.shape or K.shape[0] != K.shape[1]:
-        raise InputError("K and M must be square scipy.sparse matrices of the same shape")
-    n = K.shape[0]
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
-        raise InputError(f"k must be a positive integer, got {k!r}")
-    if k >= n:
-        raise InputError(f"k = {k} eigenpairs requested but the problem has only {n} DOFs (need k < n)")
-    K, M = sp.csr_matrix(K, dtype=float), sp.csr_matrix(M, dtype=float)
-    scale = lambda_scale(K, M)
-    if sigma is None:
-        sigma = -SHIFT_FRACTION * scale
-    elif not (np.isfinite(sigma) and sigma < 0):
-        raise InputError(f"sigma must be a negative shift (below every eigenvalue), got {sigma!r}")
-    est = factor_memory_estimate(n, K.nnz)
-    if method == "auto":
-        method, reason = choose_method(n, K.nnz, k, max_memory)
-    else:
-        reason = "requested"
-    if method == "shift-invert":
-        lam, X, used, secs, info = _shift_invert(K, M, k, sigma, backend, tol, seed)
-    else:
-        lam, X, used, secs, info = _lobpcg(K, M, k, sigma, near_null, lobpcg_tol, maxiter, seed)
-        X = X[:, :max(k, X.shape[1])]
-    t0 = time.perf_counter()
-    lam, X = rayleigh_ritz(K, M, np.asarray(X))
-    lam, X = lam[:k], X[:, :k]
-    secs["rayleigh_ritz"] = time.perf_counter() - t0
-    if not (np.all(np.isfinite(lam)) and np.all(np.isfinite(X))):
-        raise SolverError(f"the eigensolver ({method}) returned non-finite values")
-    info["factor_memory_estimate"] = est
-    return EigenResult(eigenvalues=lam, vectors=X, method=method, backend=used, sigma=float(sigma),
-                       reason=reason, seconds=secs, info=info)
-
-
-def residuals(K, M, eigenvalues: np.ndarray, vectors: np.ndarray) -> np.ndarray:
-    """Relative residual of each eigenpair, shape (k,).
-
-    ``||K phi - lambda M phi|| / ||K phi||``; for (near-)rigid modes, where ``K phi ~ 0``, the
-    denominator is floored at ``SHIFT_FRACTION * lambda_scale * ||M phi||`` (the size of the shift
-    term), which is below ``||K phi||`` for every elastic mode.
-    """
-    KX = K @ vectors
-    MX = M @ vectors
-    r = np.linalg.norm(KX - MX * eigenvalues[None, :], axis=0)
-    den = np.maximum(np.linalg.norm(KX, axis=0), SHIFT_FRACTION * lambda_scale(K, M) * np.linalg.norm(MX, axis=0))
-    return r / den
+    return EigenSolver(K, M, method=method, backend=backend, sigma=sigma, near_null=near_null, tol=tol,
+                       lobpcg_tol=lobpcg_tol, maxiter=maxiter, max_memory=max_memory, seed=seed).solve(k)

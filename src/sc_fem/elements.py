@@ -14,12 +14,15 @@ Elements (``element=``)
     Trilinear brick, full 2x2x2 Gauss integration (scikit-fem's physics).
     ``K_e = h (lambda_e K_lambda + mu_e K_mu)``. Shear-locks in bending when a member is only
     one or two cubes thick (cantilever with 1 cube through the thickness: first frequency
-    about +24 %, tip deflection about -35 %).
+    +24.30 %, tip deflection -35.28 %).
 ``"q1sri"``
     Selective reduced integration: the volumetric (bulk) term ``kappa div u div v`` at the
     cube centre (1 point), the deviatoric term ``2 mu dev(eps):dev(eps)`` at 2x2x2 points.
-    Removes volumetric (Poisson) locking but **not** shear locking, so it barely helps in
-    bending; kept as the classical alternative. Still linear in (lambda, mu).
+    Removes volumetric (Poisson) locking but **not** shear locking: on the same cantilever it
+    overshoots with 1 cube through the thickness (tip deflection +20.53 %, first frequency
+    -8.84 %) and is close with 2 (-1.76 % / +0.91 %, against -12.51 % / +7.02 % for q1 and
+    -0.67 % / +0.44 % for q1i); ``benchmarks/accuracy_vs_speed.py``. Kept as the classical
+    alternative. Still linear in (lambda, mu).
 ``"q1i"`` (default)
     Incompatible-modes hexahedron (Wilson; Taylor--Beresford--Wilson, identical on cubes):
     the trilinear field is enriched with the 9 bubble modes ``(1 - xi_k^2) e_c`` that let a cube
@@ -30,8 +33,12 @@ Elements (``element=``)
     (i.e. per distinct nu), computed in a batch.
 
 The default is ``"q1i"`` because voxelized members are 1--3 cubes thick and there it is
-one to two orders of magnitude more accurate than ``"q1"`` at the same DOFs and the same
-assembly cost (see ``benchmarks/accuracy_vs_speed.py``).
+one to two orders of magnitude more accurate than ``"q1"`` at the same DOFs and sparsity (1 cube
+thick: tip -0.78 %, f1 +0.48 %; see ``benchmarks/accuracy_vs_speed.py``). Its assembly costs
+a little more with one material and several times more with a different nu in every cube (one
+9x9 condensation per distinct nu): refilling ``K`` of the 40,960-cube cantilever (16 cubes thick)
+took 0.11--0.15 s with q1, 0.15--0.17 s with q1i (one material) and 0.66--0.89 s with q1i and a
+random nu per cube (single-threaded BLAS, minimum of 7, on a shared 2-core machine).
 
 Mass: :func:`reference_mass` is the consistent mass matrix of a cube of **unit total mass**;
 a cube of mass ``m_e`` (kg) gets ``m_e * reference_mass()``.
@@ -40,6 +47,7 @@ a cube of mass ``m_e`` (kg) gets ``m_e * reference_mass()``.
 from __future__ import annotations
 
 from functools import lru_cache
+from typing import Callable
 
 import numpy as np
 
@@ -50,7 +58,7 @@ ELEMENTS: tuple[str, ...] = ("q1", "q1i", "q1sri")
 """Names accepted by ``element=``."""
 
 DEFAULT_ELEMENT = "q1i"
-"""The default element (locking-free in bending at the same cost as Q1)."""
+"""The default element (locking-free in bending, same DOFs and sparsity as Q1)."""
 
 LINEAR_ELEMENTS = frozenset({"q1", "q1sri"})
 """Elements whose matrix is linear in (lambda, mu): ``K_e = h (lambda K_lambda + mu K_mu)``."""
@@ -129,15 +137,29 @@ def reference_stiffness(element: str) -> tuple[np.ndarray, np.ndarray]:
         For ``"q1i"`` (not linear in the Lame parameters; use :func:`element_stiffness`).
     """
     element = check_element(element)
+    if element not in LINEAR_ELEMENTS:
+        raise InputError("element 'q1i' is not linear in (lambda, mu); use element_stiffness()")
+    return _linear_parts(element)
+
+
+@lru_cache(maxsize=None)
+def _linear_parts(element: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(K_lambda, K_mu)`` of a linear element, built once per element (read-only)."""
     p = _skfem_parts()
     if element == "q1":
         return p["K_lambda"], p["K_mu"]
-    if element == "q1sri":
-        # kappa K_vol1 + mu K_dev with kappa = lambda + 2 mu / 3
-        k_mu = p["K_dev"] + (2.0 / 3.0) * p["K_vol1"]
-        k_mu.flags.writeable = False
-        return p["K_vol1"], k_mu
-    raise InputError("element 'q1i' is not linear in (lambda, mu); use element_stiffness()")
+    # q1sri: kappa K_vol1 + mu K_dev with kappa = lambda + 2 mu / 3
+    k_mu = p["K_dev"] + (2.0 / 3.0) * p["K_vol1"]
+    k_mu.flags.writeable = False
+    return p["K_vol1"], k_mu
+
+
+@lru_cache(maxsize=None)
+def _linear_rows(element: str) -> np.ndarray:
+    """``(2, 576)``: the flattened ``K_lambda`` and ``K_mu`` of a linear element (read-only)."""
+    rows = np.stack([k.ravel() for k in _linear_parts(element)])
+    rows.flags.writeable = False
+    return rows
 
 
 def reference_mass() -> np.ndarray:
@@ -146,6 +168,11 @@ def reference_mass() -> np.ndarray:
     Every 3x3 block is ``m_ab I``; the entries of one component sum to 1 (the total mass).
     """
     return _skfem_parts()["M"]
+
+
+_Q1I_PRECOMPUTE = 2048
+"""Up to this many distinct ``lambda / mu`` ratios, :func:`stiffness_chunks` builds all q1i unit
+matrices once per call (at most 2048 x 576 floats, 9.4 MB); beyond, per chunk."""
 
 
 @lru_cache(maxsize=None)
@@ -226,13 +253,46 @@ def element_stiffness(element: str, lam, mu, h: float) -> np.ndarray:
     return stiffness_values(element, lam, mu, h).reshape(-1, 24, 24)
 
 
-def stiffness_values(element: str, lam: np.ndarray, mu: np.ndarray, h: float) -> np.ndarray:
-    """Flattened element matrices ``(n, 576)`` (row-major 24x24), N/m; used by the assembler."""
+def stiffness_chunks(element: str, lam: np.ndarray, mu: np.ndarray, h: float) -> Callable[[int, int], np.ndarray]:
+    """Element matrices of cubes ``s:e`` on demand, for the assembler's chunked scatter.
+
+    The per-call work is done once here: the reference rows of a linear element (cached per
+    element) or, for ``"q1i"``, the distinct ``lambda / mu`` ratios of all cubes and (up to
+    2048 of them) their unit matrices; each chunk then only scales and indexes them. With more
+    distinct ratios (per-cube nu) a chunk builds the unit matrices of its own ratios, so the
+    memory stays bounded by the chunk size.
+
+    Parameters
+    ----------
+    element : {"q1", "q1i", "q1sri"}
+    lam, mu : ndarray, shape (n,)
+        Lame parameters per cube, Pa.
+    h : float
+        Cube edge, m.
+
+    Returns
+    -------
+    callable
+        ``values(s, e) -> ndarray (e - s, 576)``: flattened (row-major 24x24) matrices, N/m.
+    """
     if element in LINEAR_ELEMENTS:
-        k_lam, k_mu = reference_stiffness(element)
+        rows = _linear_rows(element)                                        # (2, 576)
         coef = np.stack([lam * h, mu * h], axis=1)                          # (n, 2)
-        return coef @ np.stack([k_lam.ravel(), k_mu.ravel()])               # (n, 576)
-    ratio = lam / mu
-    uniq, inv = np.unique(ratio, return_inverse=True)
-    units = q1i_unit_stiffness(uniq).reshape(len(uniq), 576)
-    return (mu * h)[:, None] * units[inv.ravel()]
+        return lambda s, e: coef[s:e] @ rows                               # (e - s, 576)
+    uniq, inv = np.unique(lam / mu, return_inverse=True)
+    inv = inv.ravel()
+    muh = mu * h
+    if len(uniq) <= _Q1I_PRECOMPUTE:          # a few materials: every unit matrix once, chunks index
+        units = q1i_unit_stiffness(uniq).reshape(len(uniq), 576)
+        return lambda s, e: muh[s:e, None] * units[inv[s:e]]
+
+    def chunk(s: int, e: int) -> np.ndarray:  # many distinct nu: only this chunk's ratios (bounded memory)
+        used, local = np.unique(inv[s:e], return_inverse=True)
+        return muh[s:e, None] * q1i_unit_stiffness(uniq[used]).reshape(len(used), 576)[local.ravel()]
+
+    return chunk
+
+
+def stiffness_values(element: str, lam: np.ndarray, mu: np.ndarray, h: float) -> np.ndarray:
+    """Flattened element matrices ``(n, 576)`` (row-major 24x24), N/m."""
+    return stiffness_chunks(element, lam, mu, h)(0, len(lam))

@@ -233,9 +233,21 @@ class CubeModel:
 
         return lame(self.youngs, self.poisson)
 
-    def node_masses(self) -> np.ndarray:
-        """Lumped node masses in kg, shape (m,): each cube gives 1/8 of its mass to each corner."""
-        return np.bincount(self.hexes.ravel(), weights=np.repeat(self.mass / 8.0, 8), minlength=self.n_nodes)
+    def node_masses(self, masses=None) -> np.ndarray:
+        """Lumped node masses in kg, shape (m,): each cube gives 1/8 of its mass to each corner.
+
+        Parameters
+        ----------
+        masses : array_like, shape (n,), optional
+            Per-cube masses in kg; default :attr:`mass`.
+        """
+        if masses is None:
+            mass = self.mass
+        else:
+            mass = as_float_array(masses, "masses")
+            if mass.shape != (self.n_cubes,):
+                raise InputError(f"masses must have shape ({self.n_cubes},), got {mass.shape}")
+        return np.bincount(self.hexes.ravel(), weights=np.repeat(mass / 8.0, 8), minlength=self.n_nodes)
 
     def to_skfem(self, metres: bool = True):
         """The lattice as a scikit-fem ``MeshHex`` (node coordinates in metres by default)."""

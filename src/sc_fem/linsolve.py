@@ -13,6 +13,7 @@ A matrix that is singular or indefinite (e.g. a floating, unsupported model) rai
 
 from __future__ import annotations
 
+import functools
 import importlib.util
 import os
 import time
@@ -30,14 +31,19 @@ _PIVOT_RTOL = 1e-13
 
 
 def available_backends() -> list[str]:
-    """The importable backends, in preference order."""
+    """The importable backends, in preference order (looked up once per process)."""
+    return list(_available_backends())
+
+
+@functools.lru_cache(maxsize=1)
+def _available_backends() -> tuple[str, ...]:
     out = []
     if importlib.util.find_spec("sksparse") is not None:
         out.append("cholmod")
     if importlib.util.find_spec("cholespy") is not None:
         out.append("cholespy")
     out.append("splu")
-    return out
+    return tuple(out)
 
 
 def _singular_message(n: int, what: str) -> str:
@@ -65,10 +71,10 @@ class Factorization:
         if A.ndim != 2 or A.shape[0] != A.shape[1] or A.shape[0] == 0:
             raise InputError(f"A must be a non-empty square matrix, got shape {A.shape}")
         if backend == "auto":
-            backend = available_backends()[0]
+            backend = _available_backends()[0]
         if backend not in BACKENDS:
             raise InputError(f"backend must be 'auto' or one of {list(BACKENDS)}, got {backend!r}")
-        if backend not in available_backends():
+        if backend not in _available_backends():
             raise InputError(f"backend {backend!r} is not installed (available: {available_backends()})")
         self.backend = backend
         self.shape = A.shape

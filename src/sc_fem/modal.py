@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from ._validate import positive_int, positive_scalar
 from .elements import DEFAULT_ELEMENT, check_element
 from .errors import InputError
 from .lattice import CubeModel
@@ -51,8 +52,9 @@ DEFAULT_DAMPING_RATIO = 0.01
 RIGID_FRACTION = 1e-10
 """A mode is rigid when ``omega^2 < RIGID_FRACTION * lambda_scale`` (``lambda_scale`` =
 ``mean(diag K) / mean(diag M)``, the order of the highest eigenvalue). Rigid modes come out at
-about ``1e-16 * lambda_scale`` (round-off); the first elastic mode of even a 200-cube-long thin
-rod is above ``1e-8 * lambda_scale``."""
+about ``1e-17 .. 1e-16 * lambda_scale`` (round-off); the first elastic (bending) mode of a free
+200 x 1 x 1-cube rod (q1i), a very floppy voxel model, is at ``4.6e-9 * lambda_scale`` -- 46x above
+the threshold (measured with ``solve_eigen`` on ``CubeModel.box((200, 1, 1), ...)``)."""
 
 AUTO_RESOLUTIONS: tuple[int, ...] = (12, 16, 24, 32, 48, 64)
 """Grids tried by ``resolution="auto"`` (cubes along the longest axis), coarsest first."""
@@ -82,9 +84,11 @@ class ModalBasis:
         How ``damping`` was specified: ``{"kind": "ratio", "zeta": ...}`` or
         ``{"kind": "rayleigh", "alpha": ..., "beta": ...}``.
     rigid : ndarray of bool, shape (k,)
-        Which modes are rigid-body modes (only when kept).
+        Which modes are rigid-body modes (frequency 0). All False unless ``keep_rigid=True``:
+        rigid modes are removed by default. Stored (not derived from ``frequencies == 0``) because
+        the mode file format has it.
     residuals : ndarray, shape (k,)
-        ``||K phi - omega^2 M phi|| / ||K phi||`` of each mode (see :func:`sc_fem.eigen.residuals`).
+        ``||K phi - omega^2 M phi|| / ||K phi||`` of each mode (see :func:`sc_fem.eigen.relative_residuals`).
     n_rigid_removed : int
         Rigid-body modes found and dropped.
     scale : float
@@ -241,65 +245,87 @@ def _log(msg: str, progress: bool) -> None:
         print(msg, file=sys.stderr, flush=True)
 
 
-def _solve_modes(model: CubeModel, *, n_modes, max_frequency, fixed_nodes_, element, lumped, keep_rigid,
-                 method, backend, max_modes, max_memory, progress):
-    """Eigenpairs of one lattice; returns (lam, X (n_free, k), rigid, res, asm, eig, timings)."""
+@dataclass(frozen=True, eq=False)
+class _Solved:
+    """Eigenpairs of one lattice before baking (internal)."""
+
+    model: CubeModel
+    fixed: np.ndarray          # fixed node indices
+    lam: np.ndarray            # (k,) kept eigenvalues, 1/s^2
+    X: np.ndarray              # (n_free, k) kept eigenvectors
+    rigid: np.ndarray          # (k,) bool
+    res: np.ndarray            # (k,) relative residuals
+    n_removed: int
+    asm: Any                   # the Assembler (maps free DOFs to nodes)
+    info: dict
+    timings: dict
+
+    @property
+    def elastic_frequencies(self) -> np.ndarray:
+        """Frequencies of the kept elastic modes, Hz."""
+        return np.sqrt(np.maximum(self.lam[~self.rigid], 0.0)) / (2.0 * np.pi)
+
+
+def _solve_modes(model: CubeModel, fixed: np.ndarray, *, n_modes, max_frequency, element, lumped, keep_rigid,
+                 method, backend, max_modes, max_memory, progress, **_) -> _Solved:
+    """Eigenpairs of one lattice; the shifted operator is set up once however often ``k`` grows."""
     from .assemble import Assembler
     from .boundary import fixed_dofs
-    from .eigen import lambda_scale, residuals, rigid_body_modes, solve_eigen
+    from .eigen import EigenSolver, rigid_body_modes
 
     t = {}
     t0 = time.perf_counter()
-    asm = Assembler(model, element, fixed_dofs=fixed_dofs(fixed_nodes_))
+    asm = Assembler(model, element, fixed_dofs=fixed_dofs(fixed))
     K = asm.stiffness()
     M = asm.mass(lumped=lumped)
     t["assemble"] = time.perf_counter() - t0
     n = K.shape[0]
     if n == 0:
         raise InputError("every node is fixed: no modes to compute")
-    scale = lambda_scale(K, M)
-    n_rigid_expected = 6 * _unsupported_parts(model, fixed_nodes_)
+    n_rigid_expected = 6 * _unsupported_parts(model, fixed)
     want = DEFAULT_N_MODES if (n_modes is None and max_frequency is None) else n_modes
     lam_max = None if max_frequency is None else (2.0 * np.pi * max_frequency) ** 2
+    k_cap = min(n - 1, max_modes + n_rigid_expected + 6)
     k = n_rigid_expected + (want if want is not None else 12)
-    near_null = rigid_body_modes(model.nodes_m, asm.free_dofs)
-    t["eigensolve"] = 0.0
+    t0 = time.perf_counter()
+    solver = EigenSolver(K, M, method=method, backend=backend,
+                         near_null=rigid_body_modes(model.nodes_m, asm.free_dofs), max_memory=max_memory)
+    scale = solver.lambda_scale
+    passes = 0
     while True:                                                   # loop: grow k until enough modes
-        k = min(k, n - 1, max_modes + n_rigid_expected + 6)
+        k = min(k, k_cap)
         if k < 1:
             raise InputError(f"the model has only {n} free DOFs: too few for a modal analysis")
-        t0 = time.perf_counter()
-        eig = solve_eigen(K, M, k, method=method, backend=backend, near_null=near_null, max_memory=max_memory)
-        t["eigensolve"] += time.perf_counter() - t0
+        eig = solver.solve(k)
+        passes += 1
         lam = eig.eigenvalues
         rigid = lam < RIGID_FRACTION * scale
         n_el = int((~rigid).sum())
         _log(f"  eigensolve: {k} pairs, {eig.method}/{eig.backend}, {n_el} elastic, "
              f"top {np.sqrt(max(lam[-1], 0)) / 2 / np.pi:.4g} Hz", progress)
-        at_limit = k >= n - 1 or k >= max_modes + n_rigid_expected + 6
-        if lam_max is not None:
-            done = lam[-1] >= lam_max or (want is not None and n_el >= want)
-        else:
-            done = n_el >= want
-        if done or at_limit:
+        done = (want is not None and n_el >= want) or (lam_max is not None and lam[-1] >= lam_max)
+        if done or k >= k_cap:
             break
-        k = max(2 * k, k + (want - n_el if want is not None and lam_max is None else 0))
+        k *= 2
+    t["eigensolve"] = time.perf_counter() - t0
     sel = np.ones(len(lam), dtype=bool)
     if lam_max is not None:
         sel &= rigid | (lam < lam_max)
-    if want is not None:
-        el_rank = np.cumsum(~rigid)
-        sel &= rigid | (el_rank <= want)
+    within = rigid | (np.cumsum(~rigid) <= (max_modes if want is None else min(want, max_modes)))
+    cut = bool(np.any(sel & ~within))                             # modes asked for beyond max_modes
+    sel &= within
     if not keep_rigid:
         sel &= ~rigid
-    res = residuals(K, M, lam, eig.vectors)
     info = {"method": eig.method, "backend": eig.backend, "reason": eig.reason, "sigma": eig.sigma,
-            "seconds": eig.seconds, "k_computed": int(len(lam)), "n_rigid_expected": n_rigid_expected,
-            "n_rigid_found": int(rigid.sum()), "lambda_scale": scale, **eig.info}
-    if lam_max is not None and not (lam[-1] >= lam_max) and not (want is not None and (~rigid).sum() >= want):
-        info["truncated"] = f"max_modes={max_modes} reached before {max_frequency:g} Hz"
-    return lam[sel], eig.vectors[:, sel], rigid[sel], res[sel], int(rigid.sum()) if not keep_rigid else 0, \
-        asm, info, t
+            "seconds": eig.seconds, "k_computed": int(len(lam)), "passes": passes, "setups": solver.n_setups,
+            "n_rigid_expected": n_rigid_expected, "n_rigid_found": int(rigid.sum()), "lambda_scale": scale,
+            **eig.info}
+    if cut or not done:
+        target = f"{max_frequency:g} Hz" if lam_max is not None else f"{want} elastic modes"
+        info["truncated"] = f"max_modes={max_modes} (or the model size) reached before {target}"
+    return _Solved(model=model, fixed=fixed, lam=lam[sel], X=eig.vectors[:, sel], rigid=rigid[sel],
+                   res=eig.residuals[sel], n_removed=0 if keep_rigid else int(rigid.sum()), asm=asm, info=info,
+                   timings=t)
 
 
 def _bake(asm, X: np.ndarray, W) -> tuple[np.ndarray, np.ndarray]:
@@ -309,17 +335,6 @@ def _bake(asm, X: np.ndarray, W) -> tuple[np.ndarray, np.ndarray]:
     flat = node.reshape(m, 3 * k)
     vert = np.asarray(W @ flat).reshape(-1, 3, k)
     return np.ascontiguousarray(node.transpose(2, 0, 1)), np.ascontiguousarray(vert.transpose(2, 0, 1))
-
-
-def _resolve_fixed(model: CubeModel, fix, fix_vertices, mesh_vertices) -> np.ndarray:
-    from .boundary import fixed_nodes
-
-    if fix is None and fix_vertices is None:
-        return np.zeros(0, dtype=np.int64)
-    if fix_vertices is not None and mesh_vertices is None:
-        raise InputError("fix_vertices needs the source mesh (mesh=) to locate the vertices")
-    return fixed_nodes(model, fix, vertices=fix_vertices,
-                       mesh_vertices=None if fix_vertices is None else mesh_vertices)
 
 
 def _fix_record(fix, fix_vertices, n_fixed: int) -> dict:
@@ -333,40 +348,51 @@ def _fix_record(fix, fix_vertices, n_fixed: int) -> dict:
             "n_nodes": int(n_fixed)}
 
 
+def _surface(model: CubeModel, mesh) -> tuple[np.ndarray, np.ndarray, str, str]:
+    """Vertices (n, 3), faces (f, 3), source name and checksum of what the modes are baked on."""
+    if mesh is not None:
+        return (np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3),
+                str(mesh.metadata.get("source", model.info.get("source", ""))),
+                str(mesh.metadata.get("sha256", model.info.get("sha256", ""))))
+    return (model.nodes, np.zeros((0, 3), dtype=np.int64), str(model.info.get("source", "")),
+            str(model.info.get("sha256", "")))
+
+
 # ---------------------------------------------------------------------------------------- modal
-def _modal_one(model: CubeModel, mesh, *, n_modes, max_frequency, fix, fix_vertices, element, lumped,
-               damping_ratio, rayleigh, keep_rigid, keep_lattice, method, backend, max_modes, max_memory,
-               progress, timings: dict) -> ModalBasis:
+def _solve_lattice(model: CubeModel, mesh, kw: dict) -> _Solved:
+    """Fixed nodes and eigenpairs of one lattice (``mesh`` locates ``fix_vertices``)."""
+    from .boundary import fixed_nodes
+
+    fix_vertices = kw["fix_vertices"]
+    if fix_vertices is not None and mesh is None:
+        raise InputError("fix_vertices needs the source mesh (mesh=) to locate the vertices")
+    fixed = fixed_nodes(model, kw["fix"], vertices=fix_vertices,
+                        mesh_vertices=None if fix_vertices is None else np.asarray(mesh.vertices, dtype=float))
+    return _solve_modes(model, fixed, **kw)
+
+
+def _finish(s: _Solved, mesh, kw: dict, timings: dict, resolution_table: list | None = None) -> ModalBasis:
+    """Bake the modes of ``s`` onto ``mesh`` (or the lattice nodes) and build the ModalBasis."""
     from .embed import embed
 
-    if mesh is not None:
-        vertices = np.asarray(mesh.vertices, dtype=float)
-        faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
-        source = str(mesh.metadata.get("source", model.info.get("source", "")))
-        sha = str(mesh.metadata.get("sha256", model.info.get("sha256", "")))
-    else:
-        vertices, faces = model.nodes, np.zeros((0, 3), dtype=np.int64)
-        source, sha = str(model.info.get("source", "")), str(model.info.get("sha256", ""))
-    fixed = _resolve_fixed(model, fix, fix_vertices, vertices if mesh is not None else None)
-    lam, X, rigid, res, n_removed, asm, info, t = _solve_modes(
-        model, n_modes=n_modes, max_frequency=max_frequency, fixed_nodes_=fixed, element=element,
-        lumped=lumped, keep_rigid=keep_rigid, method=method, backend=backend, max_modes=max_modes,
-        max_memory=max_memory, progress=progress)
-    timings.update(t)
+    model = s.model
+    vertices, faces, source, sha = _surface(model, mesh)
+    timings = {**timings, **s.timings}
     t0 = time.perf_counter()
-    W = embed(model, vertices)
-    node_modes, vertex_modes = _bake(asm, X, W)
+    node_modes, vertex_modes = _bake(s.asm, s.X, embed(model, vertices))
     timings["bake"] = time.perf_counter() - t0
-    omegas = np.where(rigid, 0.0, np.sqrt(np.maximum(lam, 0.0)))
-    zeta, spec = damping_ratios(omegas, damping_ratio=damping_ratio, rayleigh=rayleigh)
+    omegas = np.where(s.rigid, 0.0, np.sqrt(np.maximum(s.lam, 0.0)))
+    zeta, spec = damping_ratios(omegas, damping_ratio=kw["damping_ratio"], rayleigh=kw["rayleigh"])
+    keep = kw["keep_lattice"]
     return ModalBasis(
         frequencies=omegas / (2.0 * np.pi), modes=vertex_modes, vertices=vertices, faces=faces,
-        damping=zeta, damping_spec=spec, rigid=rigid, residuals=res, n_rigid_removed=n_removed,
+        damping=zeta, damping_spec=spec, rigid=s.rigid, residuals=s.res, n_rigid_removed=s.n_removed,
         scale=float(model.scale), pitch=float(model.pitch),
-        resolution=int(model.info.get("resolution", int(model.dims.max()))), element=element,
-        material=_material_record(model), fixed=_fix_record(fix, fix_vertices, len(fixed)), source=source,
-        source_sha256=sha, n_cubes=model.n_cubes, n_dofs=model.n_dofs, eigen=info, timings=dict(timings),
-        lattice=model if keep_lattice else None, node_modes=node_modes if keep_lattice else None)
+        resolution=int(model.info.get("resolution", int(model.dims.max()))), element=kw["element"],
+        material=_material_record(model), fixed=_fix_record(kw["fix"], kw["fix_vertices"], len(s.fixed)),
+        source=source, source_sha256=sha, n_cubes=model.n_cubes, n_dofs=model.n_dofs, eigen=s.info,
+        timings=timings, resolution_table=resolution_table, lattice=model if keep else None,
+        node_modes=node_modes if keep else None)
 
 
 def modal(model: Any, *, n_modes: int | None = None, max_frequency: float | None = None, mesh: Any = None,
@@ -419,7 +445,8 @@ def modal(model: Any, *, n_modes: int | None = None, max_frequency: float | None
     backend : {"auto", "cholmod", "cholespy", "splu"}
         Factorization backend for shift-invert.
     max_modes : int
-        Upper limit on the modes computed for ``max_frequency``.
+        Upper limit on the elastic modes returned (``eigen["truncated"]`` says when it cut the
+        ``max_frequency`` or ``n_modes`` request short).
     max_memory : float, optional
         Memory budget in bytes for the automatic solver choice.
     voxelize_options : dict, optional
@@ -443,22 +470,16 @@ def modal(model: Any, *, n_modes: int | None = None, max_frequency: float | None
 
     element = check_element(element)
     if n_modes is not None:
-        if isinstance(n_modes, bool) or not isinstance(n_modes, (int, np.integer)) or n_modes < 1:
-            raise InputError(f"n_modes must be a positive integer, got {n_modes!r}")
-        n_modes = int(n_modes)
+        n_modes = positive_int(n_modes, "n_modes")
     if max_frequency is not None:
-        max_frequency = float(max_frequency)
-        if not (np.isfinite(max_frequency) and max_frequency > 0):
-            raise InputError(f"max_frequency must be > 0 Hz, got {max_frequency!r}")
-    if isinstance(max_modes, bool) or not isinstance(max_modes, (int, np.integer)) or max_modes < 1:
-        raise InputError(f"max_modes must be a positive integer, got {max_modes!r}")
+        max_frequency = positive_scalar(max_frequency, "max_frequency")
     if damping_ratio is not None and rayleigh is not None:
         raise InputError("give damping_ratio or rayleigh, not both")
     vopts = dict(voxelize_options or {})
     kw = dict(n_modes=n_modes, max_frequency=max_frequency, fix=fix, fix_vertices=fix_vertices, element=element,
               lumped=lumped, damping_ratio=damping_ratio, rayleigh=rayleigh, keep_rigid=keep_rigid,
-              keep_lattice=keep_lattice, method=method, backend=backend, max_modes=int(max_modes),
-              max_memory=max_memory, progress=progress)
+              keep_lattice=keep_lattice, method=method, backend=backend,
+              max_modes=positive_int(max_modes, "max_modes"), max_memory=max_memory, progress=progress)
     if isinstance(model, CubeModel):
         if resolution is not None:
             raise InputError("resolution= applies to a mesh; a CubeModel already has its grid "
@@ -466,77 +487,68 @@ def modal(model: Any, *, n_modes: int | None = None, max_frequency: float | None
         if vopts:
             raise InputError("voxelize_options= applies to a mesh, not to a CubeModel")
         src_mesh = None if mesh is None else load_mesh(mesh)
-        return _modal_one(model, src_mesh, timings={}, **kw)
+        return _finish(_solve_lattice(model, src_mesh, kw), src_mesh, kw, {})
     if mesh is not None:
         raise InputError("mesh= is only used with a CubeModel; pass the mesh as model=")
     t0 = time.perf_counter()
     src_mesh = load_mesh(model)
-    t_load = time.perf_counter() - t0
+    timings = {"load": time.perf_counter() - t0}
     if isinstance(resolution, str) and resolution.strip().lower() == "auto":
         return _modal_auto(src_mesh, tolerance=tolerance, resolutions=resolutions, vopts=vopts,
-                           t_load=t_load, kw=kw)
+                           timings=timings, kw=kw)
     if isinstance(resolution, str):
         try:
             resolution = int(resolution)
         except ValueError:
             raise InputError(f"resolution must be an integer or 'auto', got {resolution!r}") from None
-    timings = {"load": t_load}
     t0 = time.perf_counter()
     lattice = voxelize(src_mesh, resolution=resolution, **vopts)
     timings["voxelize"] = time.perf_counter() - t0
     _log(f"  voxelized: {lattice.n_cubes} cubes, {lattice.n_dofs} DOFs", progress)
-    return _modal_one(lattice, src_mesh, timings=timings, **kw)
+    return _finish(_solve_lattice(lattice, src_mesh, kw), src_mesh, kw, timings)
 
 
-def _modal_auto(mesh, *, tolerance, resolutions, vopts, t_load, kw) -> ModalBasis:
-    from dataclasses import replace
-
+def _modal_auto(mesh, *, tolerance, resolutions, vopts, timings, kw) -> ModalBasis:
+    """``resolution="auto"``: solve grid after grid, keeping only the last two; bake the chosen one."""
     from .voxelize import voxelize
 
-    tol = float(tolerance)
-    if not (np.isfinite(tol) and tol > 0):
-        raise InputError(f"tolerance must be > 0, got {tolerance!r}")
+    tol = positive_scalar(tolerance, "tolerance")
     if "pitch" in vopts and vopts["pitch"] is not None:
         raise InputError("resolution='auto' chooses the grid; do not pass pitch=")
     vopts = {k: v for k, v in vopts.items() if k != "pitch"}
     grids = sorted({int(r) for r in (AUTO_RESOLUTIONS if resolutions is None else resolutions)})
     if len(grids) < 2 or grids[0] < 1:
         raise InputError(f"resolution='auto' needs at least two positive resolutions, got {grids}")
-    progress = kw["progress"]
     table: list[dict] = []
-    bases: list[ModalBasis] = []
-    chosen = None
-    for i, r in enumerate(grids):                                 # loop over grids (a handful)
+    prev = cur = None                                             # solutions of the last two grids
+    for r in grids:                                               # loop over grids (a handful)
         t0 = time.perf_counter()
-        timings = {"load": t_load}
         lattice = voxelize(mesh, resolution=r, **vopts)
-        timings["voxelize"] = time.perf_counter() - t0
-        _log(f"[auto] resolution {r}: {lattice.n_cubes} cubes, {lattice.n_dofs} DOFs", progress)
-        b = _modal_one(lattice, mesh, timings=timings, **kw)
-        el = b.frequencies[~b.rigid]
+        t_vox = time.perf_counter() - t0
+        _log(f"[auto] resolution {r}: {lattice.n_cubes} cubes, {lattice.n_dofs} DOFs", kw["progress"])
+        prev, cur = cur, None                                     # drop the grid before prev first
+        cur = _solve_lattice(lattice, mesh, kw)
+        cur.timings["voxelize"] = t_vox
+        el = cur.elastic_frequencies
         table.append({"resolution": r, "cubes": lattice.n_cubes, "dofs": lattice.n_dofs,
                       "seconds": time.perf_counter() - t0, "frequencies": el.tolist(),
                       "max_rel_change": None, "chosen": False})
-        bases.append(b)
-        if i > 0:
-            prev = np.asarray(table[i - 1]["frequencies"])
-            kk = min(len(prev), len(el))
+        if prev is not None:
+            fp = prev.elastic_frequencies
+            kk = min(len(fp), len(el))
             if kw["n_modes"] is not None:
                 kk = min(kk, kw["n_modes"])
-            change = float(np.max(np.abs(prev[:kk] - el[:kk]) / np.maximum(el[:kk], 1e-300))) if kk else np.inf
-            table[i - 1]["max_rel_change"] = change
+            change = float(np.max(np.abs(fp[:kk] - el[:kk]) / np.maximum(el[:kk], 1e-300))) if kk else np.inf
+            table[-2]["max_rel_change"] = change
             if change <= tol:
-                chosen = i - 1
                 break
-    converged = chosen is not None
-    if chosen is None:
-        chosen = len(bases) - 1
-    table[chosen]["chosen"] = True
+    converged = table[-2]["max_rel_change"] is not None and table[-2]["max_rel_change"] <= tol
+    chosen = prev if converged else cur
+    table[-2 if converged else -1]["chosen"] = True
     for row in table:
         row["converged"] = converged
-    b = bases[chosen]
-    return replace(b, resolution_table=table,
-                   eigen={**b.eigen, "auto_tolerance": tol, "auto_converged": converged})
+    chosen.info.update(auto_tolerance=tol, auto_converged=converged)
+    return _finish(chosen, mesh, kw, timings, resolution_table=table)
 
 
 def format_resolution_table(table: list[dict], n_show: int = 4) -> str:

@@ -14,7 +14,7 @@ modes                (k, n, 3) f32     mass-normalized mode shapes at the vertic
                                        unit modal coordinate (m kg^-1/2)
 damping              (k,) float64      damping ratio zeta of each mode
 damping_json         () str            how damping was given: ratio or Rayleigh (alpha, beta)
-rigid                (k,) bool         rigid-body modes (present only when kept)
+rigid                (k,) bool         rigid-body modes (frequency 0); all False unless kept
 residuals            (k,) float64      ||K phi - omega^2 M phi|| / ||K phi|| per mode
 rigid_removed        () int64          rigid-body modes found and removed
 scale                () float64        metres per model unit

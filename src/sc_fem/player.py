@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._validate import as_float_array, positive_scalar
+from ._validate import as_float_array, positive_int, positive_scalar
 from .errors import InputError
 from .modal import ModalBasis
 
@@ -110,7 +110,7 @@ class ModalPlayer:
             basis = load_modes(basis)
         self.basis = basis
         k, n = basis.n_modes, basis.n_vertices
-        self.omega = np.where(basis.rigid, 0.0, 2.0 * np.pi * np.asarray(basis.frequencies, dtype=float))
+        self.omega = np.asarray(basis.omegas, dtype=float)        # rigid modes have frequency 0
         self.zeta = np.asarray(basis.damping, dtype=float)
         # U: (3n, k) so that displacement (model units) = U @ q
         self._U = np.ascontiguousarray(
@@ -187,24 +187,23 @@ class ModalPlayer:
         ndarray, shape (T, n, 3)
             Vertex positions, model units; frame 0 is the current state, ``T = round(duration * fps) + 1``.
         """
-        duration = positive_scalar(duration, "duration")
-        fps = positive_scalar(fps, "fps")
-        T = int(round(duration * fps)) + 1
-        dt = 1.0 / fps
-        a, b, c, d = transition(self.omega, self.zeta, dt)     # one exact transition, reused every frame
+        times = self.times(duration, fps)
+        T = len(times)
+        a, b, c, d = transition(self.omega, self.zeta, times[1] if T > 1 else 0.0)  # one exact step, reused
         out = np.empty((T, self.basis.n_vertices, 3), dtype=dtype)
         q, v = self.q.copy(), self.v.copy()
         for i in range(T):                                      # loop over frames: one mat-vec each
-            out[i] = self.rest + (self._U @ q.astype(self._U.dtype)).reshape(-1, 3)
+            out[i] = self.positions(q)
             if i < T - 1:
                 q, v = a * q + b * v, c * q + d * v
         self.q, self.v = q, v
-        self.time += (T - 1) * dt
+        self.time += float(times[-1])
         return out
 
     def times(self, duration: float, fps: float = 30.0) -> np.ndarray:
         """Frame times of :meth:`frames`, s, shape (T,), relative to the start."""
-        T = int(round(positive_scalar(duration, "duration") * positive_scalar(fps, "fps"))) + 1
+        fps = positive_scalar(fps, "fps")
+        T = int(round(positive_scalar(duration, "duration") * fps)) + 1
         return np.arange(T) / fps
 
 
@@ -217,18 +216,16 @@ def modes_sheet(basis: ModalBasis, path, *, n_modes: int = 6, columns: int | Non
     its largest vertex displacement is ``amplitude`` times the bounding-box diagonal, coloured by
     displacement magnitude.
     """
-    from .render import _pv, _write_png, surface_polydata
+    from .render import pv, surface_polydata, write_png
 
-    if isinstance(n_modes, bool) or not isinstance(n_modes, (int, np.integer)) or n_modes < 1:
-        raise InputError(f"n_modes must be a positive integer, got {n_modes!r}")
-    k = min(int(n_modes), basis.n_modes)
+    k = min(positive_int(n_modes, "n_modes"), basis.n_modes)
     cols = columns or min(k, 3)
     rows = int(np.ceil(k / cols))
     size = window_size or (420 * cols, 380 * rows)
-    pv = _pv()
+    pvm = pv()
     rest = np.asarray(basis.vertices, dtype=float)
     diag = float(np.linalg.norm(np.ptp(rest, axis=0)))
-    p = pv.Plotter(off_screen=True, shape=(rows, cols), window_size=tuple(size), border=False)
+    p = pvm.Plotter(off_screen=True, shape=(rows, cols), window_size=tuple(size), border=False)
     try:
         for i in range(k):                                   # loop over modes (panels)
             p.subplot(i // cols, i % cols)
@@ -245,6 +242,6 @@ def modes_sheet(basis: ModalBasis, path, *, n_modes: int = 6, columns: int | Non
             p.add_text(f"mode {i}: {basis.frequencies[i]:.4g} Hz{tag}", font_size=10, color="black")
             p.view_isometric()
             p.reset_camera()
-        return _write_png(p, Path(path))
+        return write_png(p, path)
     finally:
         p.close()

@@ -62,40 +62,49 @@ def ensure_rendering() -> str:
     return os.environ.get("VTK_DEFAULT_OPENGL_WINDOW", "default")
 
 
-def _pv():
-    ensure_rendering()
-    import pyvista as pv
+def pv():
+    """The ``pyvista`` module, ready for off-screen rendering (checked by :func:`ensure_rendering`).
 
-    pv.OFF_SCREEN = True
-    return pv
+    Raises
+    ------
+    RenderError
+        No OpenGL context could be made.
+    """
+    ensure_rendering()
+    import pyvista
+
+    pyvista.OFF_SCREEN = True
+    return pyvista
 
 
 def surface_polydata(vertices: np.ndarray, faces: np.ndarray):
     """A pyvista PolyData of a triangle mesh (or point cloud when there are no faces)."""
-    pv = _pv()
+    pvm = pv()
     vertices = np.asarray(vertices, dtype=float)
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     if len(faces) == 0:
-        return pv.PolyData(vertices)
+        return pvm.PolyData(vertices)
     cells = np.hstack([np.full((len(faces), 1), 3), faces]).ravel()
-    return pv.PolyData(vertices, cells)
+    return pvm.PolyData(vertices, cells)
 
 
 def cubes_grid(model: CubeModel, node_positions: np.ndarray | None = None):
     """The cubes as a pyvista UnstructuredGrid of VTK hexahedra (model units)."""
-    pv = _pv()
+    pvm = pv()
     import vtk
 
     pts = model.nodes if node_positions is None else np.asarray(node_positions, float)
     conn = model.hexes[:, _VTK_HEX_ORDER]
     cells = np.hstack([np.full((model.n_cubes, 1), 8), conn]).ravel()
-    grid = pv.UnstructuredGrid(cells, np.full(model.n_cubes, vtk.VTK_HEXAHEDRON, dtype=np.uint8), pts)
+    grid = pvm.UnstructuredGrid(cells, np.full(model.n_cubes, vtk.VTK_HEXAHEDRON, dtype=np.uint8), pts)
     grid.cell_data["youngs_Pa"] = model.youngs
     grid.cell_data["mass_kg"] = model.mass
     return grid
 
 
-def _write_png(plotter, path: Path) -> Path:
+def write_png(plotter, path) -> Path:
+    """Screenshot of a pyvista ``plotter`` written atomically to ``path`` (PNG); returns the path."""
+    path = Path(path)
     with atomic_path(path, suffix=".png") as tmp:
         plotter.screenshot(str(tmp))
     return path
@@ -104,9 +113,9 @@ def _write_png(plotter, path: Path) -> Path:
 def plot_cubes_over_mesh(model: CubeModel, mesh, path, *, title: str | None = None,
                          window_size=(1200, 900)) -> Path:
     """Write a PNG of the cube lattice (translucent, with edges) over the source mesh."""
-    pv = _pv()
+    pvm = pv()
     path = Path(path)
-    p = pv.Plotter(off_screen=True, window_size=tuple(window_size))
+    p = pvm.Plotter(off_screen=True, window_size=tuple(window_size))
     try:
         p.set_background("white")
         p.add_mesh(surface_polydata(mesh.vertices, mesh.faces), color="#d9822b", smooth_shading=False)
@@ -116,7 +125,7 @@ def plot_cubes_over_mesh(model: CubeModel, mesh, path, *, title: str | None = No
         p.view_vector((1.0, -1.3, 0.9))
         p.reset_camera()
         p.camera.zoom(1.25)
-        return _write_png(p, path)
+        return write_png(p, path)
     finally:
         p.close()
 
@@ -143,11 +152,11 @@ def render_animation(frames: np.ndarray, faces: np.ndarray, path, *, fps: float 
     kind = path.suffix.lower()
     if kind not in (".mp4", ".gif", ""):
         raise InputError(f"unsupported animation output {path.name!r}: use .mp4, .gif or a folder")
-    pv = _pv()
+    pvm = pv()
     import imageio.v2 as imageio
 
     mesh = surface_polydata(frames[0], faces)
-    p = pv.Plotter(off_screen=True, window_size=tuple(window_size))
+    p = pvm.Plotter(off_screen=True, window_size=tuple(window_size))
     lo, hi = frames.min(axis=(0, 1)), frames.max(axis=(0, 1))
     try:
         p.set_background("white")

@@ -63,15 +63,13 @@ def rope_curve_points(mesh, n_curves: int = 24, n_points: int = 832) -> np.ndarr
     best = np.full(len(o), -np.inf)
     np.maximum.at(best, ray, dist)
     missing = ~np.isfinite(best)
+    best[missing] = 0.0
+    pts = o + dd * best[:, None]
     if np.any(missing):            # fall back to the closest surface point
         import trimesh
 
         cp, _, _ = trimesh.proximity.closest_point(mesh, o[missing] + dd[missing] * 0.5 * (hi[1] - lo[1]))
-        best[missing] = 0.0
-        pts = o + dd * best[:, None]
         pts[missing] = cp
-    else:
-        pts = o + dd * best[:, None]
     return pts.reshape(n_curves, n_points, 3)
 
 
@@ -92,7 +90,8 @@ def rope_scene(n_frames: int = 201, fps: float = 60.0, resolution: int = 40, sub
     substeps, iterations : int
         XPBD substeps per frame and iterations per substep.
     youngs : float, optional
-        Young's modulus, Pa (default: the rope's material, 1 MPa).
+        Young's modulus, Pa (default: the built-in rope's material ``sc_fem.models.material("rope")``,
+        1 MPa; its Poisson's ratio and density are always used).
     mesh : trimesh.Trimesh, optional
         Rope mesh along x (default ``sc_fem.models.load("rope")``).
     constraints, damping : see :class:`~sc_fem.xpbd.XPBDSolver`.
@@ -102,18 +101,14 @@ def rope_scene(n_frames: int = 201, fps: float = 60.0, resolution: int = 40, sub
 
     n_frames = positive_int(n_frames, "n_frames")
     fps = positive_scalar(fps, "fps")
+    from . import models
+
     t0 = _time.perf_counter()
     if mesh is None:
-        from . import models
-
         mesh = models.load("rope")
-        mat = models.material("rope")
-        E, nu, rho = mat.youngs, mat.poisson, mat.density
-    else:
-        E, nu, rho = 1.0e6, 0.45, 1100.0
-    if youngs is not None:
-        E = positive_scalar(youngs, "youngs")
-    model = voxelize(mesh, resolution=resolution, youngs=E, poisson=nu, density=rho)
+    mat = models.material("rope")
+    E = mat.youngs if youngs is None else positive_scalar(youngs, "youngs")
+    model = voxelize(mesh, resolution=resolution, youngs=E, poisson=mat.poisson, density=mat.density)
     verts = np.asarray(mesh.vertices, dtype=float)
     curves0 = rope_curve_points(mesh, n_curves, n_points)
     pts = np.vstack([verts, curves0.reshape(-1, 3)])

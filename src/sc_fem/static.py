@@ -162,11 +162,12 @@ def solve_static(model: CubeModel, *, element: str = DEFAULT_ELEMENT, fix=None, 
     if gravity is not None:
         g = as_float_array(gravity, "gravity", (3,))
         f += model.node_masses()[:, None] * g[None, :]
-    W = None
+    W = emb = None
     if pts is not None:
-        from .embed import embed
+        from .embed import embedding
 
-        W = embed(model, pts)
+        emb = embedding(model, pts)
+        W = emb.W
     if point_forces is not None:
         if pts is None:
             raise InputError("point_forces needs points= (or mesh=) to say where the forces act")
@@ -175,8 +176,7 @@ def solve_static(model: CubeModel, *, element: str = DEFAULT_ELEMENT, fix=None, 
 
     if fix_vertices is not None and pts is None:
         raise BoundaryConditionError("fix_vertices needs mesh= or points= (the vertex positions)")
-    fixed = fixed_nodes(model, fix, vertices=fix_vertices, mesh_vertices=pts if fix_vertices is not None else None) \
-        if (fix is not None or fix_vertices is not None) else np.zeros(0, dtype=np.int64)
+    fixed = fixed_nodes(model, fix, vertices=fix_vertices, mesh_embedding=emb)
 
     # parts that are not held: error if loaded, pin if unloaded
     labels = _node_components(model)
@@ -210,9 +210,8 @@ def solve_static(model: CubeModel, *, element: str = DEFAULT_ELEMENT, fix=None, 
     t["assemble"] = time.perf_counter() - t0
     if K.shape[0] == 0:
         raise BoundaryConditionError("every node is fixed: nothing to solve")
-    t0 = time.perf_counter()
     fac = factorize(K, backend)
-    t["factorize"] = time.perf_counter() - t0
+    t["factorize"] = fac.seconds
     t0 = time.perf_counter()
     b = asm.restrict(f)
     x = fac.solve(b)

@@ -32,7 +32,8 @@ Constraints (``constraints=``):
     refreshed once per iteration; compliance ``1 / (2 mu V)``) solved exactly as a 24-dof block at
     fixed ``R``, then the volume constraint ``det F - 1`` (compliance ``1 / (lambda V)``). Zero
     rest values, no cancelling multipliers. Eigen-analysis of one substep's linearised map at rest
-    (tests): spectral radius <= 1 at 1-16 ms substeps, whereas the Neo-Hookean pair reaches ~3.8 at
+    (tests): spectral radius <= 1 + 5e-4 at 1-16 ms substeps (0.9990 / 1.00006 / 1.0005 / 0.99997
+    at 1 / 2 / 4 / 16 ms), whereas the Neo-Hookean pair reaches ~3.8 at
     1 ms and ~2.5e5 at 4 ms on a 5 MPa 5 cm lattice (its C_D and C_H gradients are parallel at
     rest, so the 2x2 solve produces large cancelling multipliers ~1/alpha~ and the one-sweep
     Gauss-Seidel overshoots). Limits (measured): with one iteration at long substeps it is far
@@ -66,7 +67,8 @@ Blow-up detection: after every step, non-finite positions/velocities or a total 
 start by more than ``max_energy_growth`` (default 10) x ``energy_scale`` (max of initial kinetic +
 elastic energy and ``M |g| diameter``) raise :class:`~sc_fem.errors.InstabilityError` naming the step
 and the substep length. :func:`stability_sweep` returns (dt, max energy growth, blown up, error)
-rows for a model (used by ``benchmarks/xpbd.py``).
+rows for a model (used by ``benchmarks/xpbd.py``); its error compares the *final* displacement
+with a static reference.
 
 ``"distance"`` -- classic per-cube distance constraints along the 12 edges, 12 face diagonals and
     4 body diagonals (a central-force lattice). Stiffnesses ``k_edge = k_face = M h / 12``,
@@ -92,8 +94,9 @@ successive downward tip peaks): neohookean 25 substeps/frame (0.67 ms) delta = 0
 0.34 %), 50 substeps delta = 0.016 (zeta = 0.26 %), 50 substeps warm start delta = 0.010 (0.17 %),
 corotational 50 substeps delta = 0.020 (0.31 %); i.e. 1.4x (0.67 ms) to 2.2x (0.33 ms) implicit
 Euler's zeta = omega dt_s / 2 (omega = 7.25 rad/s): halving the substep removes only ~1/4 of the
-damping, because the unconverged single iteration adds its own dissipation. The full-size figures are printed by the default run. ``damping`` adds explicit
-mass-proportional damping ``v <- v / (1 + damping * dt_s)`` (1/s).
+damping, because the unconverged single iteration adds its own dissipation. The full-size figures
+are printed by the default run. ``damping`` adds explicit mass-proportional damping
+``v <- v / (1 + damping * dt_s)`` (1/s).
 
 Units: positions in metres, velocities m/s, times s, energies J.
 """
@@ -108,12 +111,15 @@ import numpy as np
 
 from ._validate import as_float_array, as_points, positive_int, positive_scalar
 from .errors import BoundaryConditionError, InputError, InstabilityError
+from .integrators.base import Energy
+from .integrators.corotational import DN_CENTRE, centre_F, cofactor, polar_rotation
 from .lattice import HEX_CORNERS, CubeModel
 
 CONSTRAINTS = ("corotational", "neohookean", "distance")
 
-_SIGNS = 2.0 * HEX_CORNERS - 1.0                      # (8, 3) corner signs s_a
-DN_CENTRE = _SIGNS / 4.0                               # grad N_a at the centre of a unit cube
+XPBDEnergy = Energy
+"""Energy split of an XPBD state (alias of :class:`sc_fem.integrators.base.Energy`): kinetic,
+gravity potential (relative to the rest positions), elastic (of the constraints, zero at rest), J."""
 
 
 def _reference_laplacian() -> np.ndarray:
@@ -151,7 +157,6 @@ def _matchings() -> tuple[np.ndarray, np.ndarray]:
 
 
 MATCHINGS, MATCHING_KIND = _matchings()               # (7, 4, 2), (7,) 1=edge 2=face 3=body
-_P1, _P2 = np.array([1, 2, 0]), np.array([2, 0, 1])    # cyclic index shifts for cofactors
 
 
 def _sqrt_laplacian() -> np.ndarray:
@@ -163,35 +168,34 @@ S_REF = _sqrt_laplacian()
 """Symmetric square root of :data:`L_REF` (8, 8): ``S S = L_REF``, ``S 1 = 0``."""
 
 
-def _cofactor(F: np.ndarray) -> np.ndarray:
-    """Cofactor matrices ``det(F) F^-T`` of a batch (n, 3, 3)."""
-    return (F[:, _P1[:, None], _P1] * F[:, _P2[:, None], _P2]
-            - F[:, _P1[:, None], _P2] * F[:, _P2[:, None], _P1])
+def _volume_terms(X: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """``J = det F`` at the cube centre and its gradient ``grad_a J = cof(F) grad N_a``.
+
+    Parameters
+    ----------
+    X : ndarray, shape (n, 8, 3)
+        Corner positions, metres, :data:`HEX_CORNERS` order.
+    h : float
+        Rest edge, metres.
+
+    Returns
+    -------
+    J : ndarray, shape (n,)
+        Dimensionless.
+    gJ : ndarray, shape (n, 8, 3)
+        1/m.
+    """
+    F = centre_F(X, h)                                               # (n, 3, 3), F_jk
+    cof = cofactor(F)
+    J = np.einsum("ij,ij->i", F[:, 0, :], cof[:, 0, :])
+    return J, np.matmul(DN_CENTRE, cof.transpose(0, 2, 1)) * (1.0 / h)
 
 
-def polar_rotation(F: np.ndarray, iterations: int = 5) -> np.ndarray:
-    """Rotation ``R`` of the polar decomposition ``F = R U`` of a batch (n, 3, 3).
-
-    Newton's iteration ``X <- (X + X^-T) / 2`` from ``X = F`` (quadratic convergence; 5
-    iterations reach round-off for strains below ~30 %); matrices with ``det F <= 0`` or that
-    did not converge fall back to the SVD (``U diag(1, 1, det(U V^T)) V^T``)."""
-    X = F
-    prev = F
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        for _ in range(iterations):
-            C = _cofactor(X)
-            d = np.einsum("nj,nj->n", X[:, 0], C[:, 0])
-            prev, X = X, 0.5 * (X + C / d[:, None, None])
-        bad = ~(np.einsum("nij,nij->n", X - prev, X - prev) < 1e-20)
-        bad |= ~(np.linalg.det(F) > 0)
-    if np.any(bad):
-        Fb = np.where(np.isfinite(F[bad]), F[bad], 0.0)
-        U, _, Vt = np.linalg.svd(Fb)
-        s = np.sign(np.linalg.det(np.matmul(U, Vt)))
-        U[:, :, 2] *= np.where(s == 0, 1.0, s)[:, None]
-        X = X.copy()
-        X[bad] = np.matmul(U, Vt)
-    return X
+def _scatter_add(x: np.ndarray, nodes: np.ndarray, dX: np.ndarray) -> None:
+    """``x[nodes] += dX`` with repeated nodes summed; ``x`` (m, 3), ``nodes`` (k, c), ``dX`` (k, c, 3)."""
+    flat = nodes.ravel()
+    for j in range(3):
+        x[:, j] += np.bincount(flat, weights=dX[..., j].ravel(), minlength=len(x))
 
 
 def corotational_terms(X: np.ndarray, h: float, R: np.ndarray):
@@ -219,11 +223,6 @@ def corotational_terms(X: np.ndarray, h: float, R: np.ndarray):
     return np.matmul(S_REF, X - Xr) * (1.0 / h)
 
 
-def centre_F(X: np.ndarray, h: float) -> np.ndarray:
-    """Deformation gradient at the cube centre (= cube mean), shape (n, 3, 3), from (n, 8, 3)."""
-    return np.matmul(X.transpose(0, 2, 1), DN_CENTRE) * (1.0 / h)
-
-
 @dataclass(frozen=True, eq=False)
 class XPBDState:
     """State of an XPBD simulation after a step.
@@ -244,20 +243,6 @@ class XPBDState:
     step: int
     positions: np.ndarray
     velocities: np.ndarray
-
-
-@dataclass(frozen=True)
-class XPBDEnergy:
-    """Energy split, joules: kinetic, gravity potential (relative to the rest positions),
-    elastic (of the constraints, zero at rest) and their ``total``."""
-
-    kinetic: float
-    gravity: float
-    elastic: float
-
-    @property
-    def total(self) -> float:
-        return self.kinetic + self.gravity + self.elastic
 
 
 def cube_colors(model: CubeModel) -> np.ndarray:
@@ -287,10 +272,7 @@ def neohookean_terms(X: np.ndarray, h: float):
     LX = np.matmul(L_REF, X)                                       # (n, 8, 3)
     CD = np.sqrt(np.maximum(np.einsum("ij,ij->i", X.reshape(n, 24), LX.reshape(n, 24)), 1e-300)) / h
     gD = LX * (1.0 / (h * h * CD))[:, None, None]
-    F = np.matmul(X.transpose(0, 2, 1), DN_CENTRE) * (1.0 / h)     # (n, 3, 3), F_jk
-    cof = F[:, _P1[:, None], _P1] * F[:, _P2[:, None], _P2] - F[:, _P1[:, None], _P2] * F[:, _P2[:, None], _P1]
-    J = np.einsum("ij,ij->i", F[:, 0, :], cof[:, 0, :])
-    gH = np.matmul(DN_CENTRE, cof.transpose(0, 2, 1)) * (1.0 / h)  # (n, 8, 3)
+    J, gH = _volume_terms(X, h)
     return CD, gD, J, gH
 
 
@@ -327,7 +309,7 @@ class XPBDSolver:
         Frame step in seconds (one :meth:`step`); split into ``substeps`` substeps.
     substeps, iterations : int
         Substeps per step and solver iterations per substep (J of Algorithm 1).
-    constraints : {"neohookean", "distance"}
+    constraints : {"neohookean", "corotational", "distance"}
         Constraint family (see the module docstring).
     gravity : array_like, shape (3,)
         m/s^2.
@@ -341,6 +323,9 @@ class XPBDSolver:
         Jacobi relaxation factor ``omega`` (per-constraint step scaled by ``omega / valence``).
     warm_start : bool
         Re-use the previous substep's multipliers (see module docstring). False = Algorithm 1.
+    max_energy_growth : float
+        Blow-up threshold: :meth:`step` raises :class:`~sc_fem.errors.InstabilityError` when the
+        total energy exceeds its start by more than this many :attr:`energy_scale` (default 10).
     positions, velocities : array_like, shape (m, 3), optional
         Initial state in metres and m/s (default: rest positions ``model.nodes_m``, zero).
     """
@@ -348,7 +333,7 @@ class XPBDSolver:
     def __init__(self, model: CubeModel, dt: float, *, substeps: int = 10, iterations: int = 1,
                  constraints: str = "neohookean", gravity=(0.0, 0.0, -9.81), fixed=None,
                  damping: float = 0.0, gauss_seidel: bool = True, relaxation: float = 1.0,
-                 warm_start: bool = False, symmetric: bool = False, max_energy_growth: float = 10.0,
+                 warm_start: bool = False, max_energy_growth: float = 10.0,
                  positions=None, velocities=None) -> None:
         if not isinstance(model, CubeModel):
             raise InputError(f"model must be a CubeModel, got {type(model).__name__}")
@@ -366,20 +351,19 @@ class XPBDSolver:
             raise InputError(f"relaxation must be in (0, 2), got {self.relaxation}")
         self.gauss_seidel = bool(gauss_seidel)
         self.warm_start = bool(warm_start)
-        self.symmetric = bool(symmetric)
         self.max_energy_growth = positive_scalar(max_energy_growth, "max_energy_growth")
         m = model.n_nodes
         self.rest = model.nodes_m.copy()
-        x = self.rest.copy() if positions is None else as_points(positions, "positions").copy()
-        v = np.zeros((m, 3)) if velocities is None else as_points(velocities, "velocities").copy()
-        if x.shape != (m, 3) or v.shape != (m, 3):
-            raise InputError(f"positions and velocities must have shape ({m}, 3), got {x.shape}, {v.shape}")
+        x = self.rest.copy() if positions is None else as_float_array(positions, "positions", (m, 3)).copy()
+        v = np.zeros((m, 3)) if velocities is None else as_float_array(velocities, "velocities", (m, 3)).copy()
         self.fixed = _as_fixed(fixed, m)
         self.mass = model.node_masses()
         self.w = np.where(self.fixed, 0.0, 1.0 / self.mass)
         v[self.fixed] = 0.0
         self._x, self._v = x, v
         self.time, self.n_steps = 0.0, 0
+        self.last_energy_growth = 0.0
+        """Energy growth (see :meth:`energy_growth`) after the last :meth:`step`."""
         self.h = model.h
         self._build()
         e0 = self.energy()
@@ -396,51 +380,45 @@ class XPBDSolver:
         V = self.h ** 3
         lam, mu = md.lame()
         colors = cube_colors(md)
-        valence = np.bincount(md.hexes.ravel(), minlength=md.n_nodes)
         if self.constraints == "neohookean":
             lam_nh = lam + mu
             self._gamma = 1.0 + mu / lam_nh
             self._alphaD = 1.0 / (mu * V)
             self._alphaH = 1.0 / (lam_nh * V)
-            self._terms = neohookean_terms
         if self.constraints == "corotational":
-            self._gamma = np.ones(md.n_cubes)
             self._alphaD = 1.0 / (2.0 * mu * V)
             self._alphaH = 1.0 / (lam * V)
-            self._R = np.broadcast_to(np.eye(3), (md.n_cubes, 3, 3)).copy()
-            self._Ainv = None
             self._Ainv_ds = None
         if self.constraints != "distance":
             self._lamD = np.zeros((md.n_cubes, 8, 3) if self.constraints == "corotational" else md.n_cubes)
             self._lamH = np.zeros(md.n_cubes)
-            self._groups = [np.flatnonzero(colors == c) for c in range(8) if np.any(colors == c)]
+            groups = [np.flatnonzero(colors == c) for c in range(8) if np.any(colors == c)]
+            valence = np.bincount(md.hexes.ravel(), minlength=md.n_nodes)
             self._jac = self.relaxation / valence[md.hexes].max(axis=1)
             nodes_of = md.hexes
         else:
             M = lam + 2.0 * mu
             kfac = np.where(MATCHING_KIND == 3, 0.25, 1.0 / 12.0)                   # (7,)
-            pairs, k, group = [], [], []
+            pairs, k = [], []
             for c in range(8):
                 cubes = np.flatnonzero(colors == c)
                 if cubes.size == 0:
                     continue
                 for g in range(7):
-                    p = md.hexes[cubes][:, MATCHINGS[g]].reshape(-1, 2)          # (4 n_c, 2)
-                    pairs.append(p)
+                    pairs.append(md.hexes[cubes][:, MATCHINGS[g]].reshape(-1, 2))  # (4 n_c, 2)
                     k.append(np.repeat(M[cubes] * self.h * kfac[g], 4))
-                    group.append(np.full(len(p), len(group)))
             self._pairs = np.concatenate(pairs)
             self._alpha = 1.0 / np.concatenate(k)
             self._rest_len = np.linalg.norm(self.rest[self._pairs[:, 1]] - self.rest[self._pairs[:, 0]], axis=1)
-            gid = np.concatenate(group)
-            self._groups = [np.flatnonzero(gid == g) for g in range(len(pairs))]
+            ends = np.cumsum([0] + [len(p) for p in pairs])
+            groups = [np.arange(i, j) for i, j in zip(ends[:-1], ends[1:])]
             self._lamC = np.zeros(len(self._pairs))
             nodes_of = self._pairs
             cval = np.bincount(self._pairs.ravel(), minlength=md.n_nodes)
             self._jac = self.relaxation / cval[self._pairs].max(axis=1)
 
         # per group: constraint indices, their nodes and inverse masses (last group = all, for Jacobi)
-        self._gidx = [*self._groups, np.arange(len(nodes_of))]
+        self._gidx = [*groups, np.arange(len(nodes_of))]
         self._gnodes = [nodes_of[i] for i in self._gidx]
         self._gw = [self.w[nd][..., None] for nd in self._gnodes]
 
@@ -450,7 +428,7 @@ class XPBDSolver:
         """Project the cube constraints of group ``g`` (2x2 coupled solve per cube)."""
         idx, hexes, W = self._gidx[g], self._gnodes[g], self._gw[g]
         X = x[hexes]
-        CD, gD, J, gH = self._terms(X, self.h)
+        CD, gD, J, gH = neohookean_terms(X, self.h)
         aD, aH = aD[idx], aH[idx]
         WgD, WgH = W * gD, W * gH
         n = len(idx)
@@ -472,82 +450,65 @@ class XPBDSolver:
         x[hexes] = X + dX
         return None
 
-    def _block_inverse(self, ds: float) -> np.ndarray:
-        """``(S W_c S / h^2 + alpha~_D I)^-1`` per cube (n, 8, 8), cached for the substep ``ds``."""
-        if self._Ainv is None or self._Ainv_ds != ds:
+    def _block_inverse(self, ds: float) -> None:
+        """Cache ``(S W_c S / h^2 + alpha~_D I)^-1`` per cube (n, 8, 8), split by group, for the
+        substep ``ds``."""
+        if self._Ainv_ds != ds:
             Wc = self.w[self.model.hexes]                                               # (n, 8)
             A = np.einsum("ab,nb,bc->nac", S_REF, Wc, S_REF) / self.h ** 2
             A += (self._alphaD / ds ** 2)[:, None, None] * np.eye(8)
-            self._Ainv = np.linalg.inv(A)
-            self._Ainv_g = [self._Ainv[i] for i in self._gidx]
+            Ainv = np.linalg.inv(A)
+            self._Ainv_g = [Ainv[i] for i in self._gidx]
             self._Ainv_ds = ds
-        return self._Ainv
 
     def _update_rotations(self, x: np.ndarray) -> None:
         self._R = polar_rotation(centre_F(x[self.model.hexes], self.h))
 
     def _project_corot(self, x: np.ndarray, g: int, aD: np.ndarray, aH: np.ndarray,
-                       scale=None, accumulate: bool = False, reverse: bool = False):
+                       scale=None, accumulate: bool = False):
         """Project the cubes of group ``g``: deviatoric block (exact 24-dof solve at fixed R),
-        then (Gauss-Seidel) the volume constraint ``det F - 1`` (``reverse``: volume first)."""
-        if reverse:
-            self._project_vol(x, g, aH)
-            self._project_dev(x, g, aD)
-            return None
-        if not accumulate:
-            self._project_dev(x, g, aD)
-            self._project_vol(x, g, aH)
-            return None
-        idx, hexes, W = self._gidx[g], self._gnodes[g], self._gw[g]
-        h = self.h
-        X = x[hexes]
-        CD = corotational_terms(X, h, self._R[idx])
-        rhs = -CD - aD[idx][:, None, None] * self._lamD[idx]
-        dl = np.matmul(self._Ainv[idx], rhs)                                            # (n, 8, 3)
-        if scale is not None:
-            dl = dl * scale[idx][:, None, None]
-        self._lamD[idx] += dl
-        dXD = W * np.matmul(S_REF, dl) * (1.0 / h)
-        Y = X if accumulate else X + dXD
-        F = centre_F(Y, h)
-        cof = _cofactor(F)
-        J = np.einsum("ij,ij->i", F[:, 0, :], cof[:, 0, :])
-        gH = np.matmul(DN_CENTRE, cof.transpose(0, 2, 1)) * (1.0 / h)                  # (n, 8, 3)
-        n = len(idx)
-        WgH = W * gH
-        a = aH[idx]
-        dH = (1.0 - J - a * self._lamH[idx]) / (np.einsum("ij,ij->i", WgH.reshape(n, 24), gH.reshape(n, 24)) + a)
-        if scale is not None:
-            dH = dH * scale[idx]
-        self._lamH[idx] += dH
+        then the volume constraint ``det F - 1`` (Gauss-Seidel: at the updated positions; Jacobi
+        (``accumulate``): both at ``x``, corrections returned as ``(hexes, dX)``)."""
         if accumulate:
-            return hexes, dXD + WgH * dH[:, None, None]
-        x[hexes] = Y + WgH * dH[:, None, None]
+            hexes, dXD = self._project_dev(x, g, aD, scale, accumulate=True)
+            _, dXH = self._project_vol(x, g, aH, scale, accumulate=True)
+            return hexes, dXD + dXH
+        self._project_dev(x, g, aD)
+        self._project_vol(x, g, aH)
         return None
 
-    def _project_dev(self, x: np.ndarray, g: int, aD: np.ndarray) -> None:
+    def _project_dev(self, x: np.ndarray, g: int, aD: np.ndarray, scale=None, accumulate: bool = False):
         """Deviatoric (ARAP) block of group ``g``: exact 24-dof solve at fixed ``R``."""
         idx, hexes, W = self._gidx[g], self._gnodes[g], self._gw[g]
         X = x[hexes]
         rhs = -corotational_terms(X, self.h, self._R[idx]) - aD[idx][:, None, None] * self._lamD[idx]
         dl = np.matmul(self._Ainv_g[g], rhs)                                            # (n, 8, 3)
+        if scale is not None:
+            dl = dl * scale[idx][:, None, None]
         self._lamD[idx] += dl
-        x[hexes] = X + W * np.matmul(S_REF, dl) * (1.0 / self.h)
+        dX = W * np.matmul(S_REF, dl) * (1.0 / self.h)
+        if accumulate:
+            return hexes, dX
+        x[hexes] = X + dX
+        return None
 
-    def _project_vol(self, x: np.ndarray, g: int, aH: np.ndarray) -> None:
+    def _project_vol(self, x: np.ndarray, g: int, aH: np.ndarray, scale=None, accumulate: bool = False):
         """Volume constraint ``det F_centre - 1`` of the cubes of group ``g``."""
         idx, hexes, W = self._gidx[g], self._gnodes[g], self._gw[g]
         X = x[hexes]
-        F = centre_F(X, self.h)
-        cof = _cofactor(F)
-        J = np.einsum("ij,ij->i", F[:, 0, :], cof[:, 0, :])
-        gH = np.matmul(DN_CENTRE, cof.transpose(0, 2, 1)) * (1.0 / self.h)             # (n, 8, 3)
+        J, gH = _volume_terms(X, self.h)                                                # (n,), (n, 8, 3)
         WgH = W * gH
         a = aH[idx]
         n = len(idx)
         dH = (1.0 - J - a * self._lamH[idx]) / (np.einsum("ij,ij->i", WgH.reshape(n, 24), gH.reshape(n, 24)) + a)
+        if scale is not None:
+            dH = dH * scale[idx]
         self._lamH[idx] += dH
-        x[hexes] = X + WgH * dH[:, None, None]
+        dX = WgH * dH[:, None, None]
+        if accumulate:
+            return hexes, dX
+        x[hexes] = X + dX
+        return None
 
     def _project_dist(self, x: np.ndarray, g: int, alpha: np.ndarray, scale=None,
                       accumulate: bool = False):
@@ -576,40 +537,28 @@ class XPBDSolver:
         if self.constraints == "corotational":
             self._update_rotations(x)
         if self.gauss_seidel:
-            ng = len(self._gidx) - 1
-            for g in range(ng):
+            for g in range(len(self._gidx) - 1):
                 project(x, g, *a_t)
-            if self.symmetric:
-                if self.constraints == "corotational":
-                    for g in reversed(range(ng)):
-                        project(x, g, *a_t, reverse=True)
-                else:
-                    for g in reversed(range(ng)):
-                        project(x, g, *a_t)
             return
         nodes, dX = project(x, len(self._gidx) - 1, *a_t, scale=self._jac, accumulate=True)
-        flat = nodes.ravel()
-        for j in range(3):
-            x[:, j] += np.bincount(flat, weights=dX[..., j].ravel(), minlength=len(x))
+        _scatter_add(x, nodes, dX)
 
     def _scaled_compliance(self, ds: float):
         if self.constraints != "distance":
-            n = self.model.n_cubes
-            return (np.broadcast_to(self._alphaD / ds**2, (n,)), np.broadcast_to(self._alphaH / ds**2, (n,)))
+            return (self._alphaD / ds**2, self._alphaH / ds**2)
         return (self._alpha / ds**2,)
 
     def _apply_multipliers(self, x: np.ndarray, at: np.ndarray) -> None:
         """Warm start: add ``M^-1 grad C^T lam`` of the stored multipliers, gradients at ``at``."""
         if self.constraints == "corotational":
             hexes = self.model.hexes
-            F = centre_F(at[hexes], self.h)
-            gH = np.matmul(DN_CENTRE, _cofactor(F).transpose(0, 2, 1)) * (1.0 / self.h)
+            _, gH = _volume_terms(at[hexes], self.h)
             dX = self.w[hexes][..., None] * (np.matmul(S_REF, self._lamD) * (1.0 / self.h)
                                              + gH * self._lamH[:, None, None])
             nodes = hexes
         elif self.constraints != "distance":
             hexes = self.model.hexes
-            _, gD, _, gH = self._terms(at[hexes], self.h)
+            _, gD, _, gH = neohookean_terms(at[hexes], self.h)
             dX = self.w[hexes][..., None] * (gD * self._lamD[:, None, None] + gH * self._lamH[:, None, None])
             nodes = hexes
         else:
@@ -619,8 +568,7 @@ class XPBDSolver:
             corr = n * self._lamC[:, None]
             dX = np.stack([-self.w[p[:, 0]][:, None] * corr, self.w[p[:, 1]][:, None] * corr], axis=1)
             nodes = p
-        for j in range(3):
-            x[:, j] += np.bincount(nodes.ravel(), weights=dX[..., j].ravel(), minlength=len(x))
+        _scatter_add(x, nodes, dX)
 
     def _reset_multipliers(self) -> None:
         for name in ("_lamD", "_lamH", "_lamC"):
@@ -654,7 +602,9 @@ class XPBDSolver:
         Raises
         ------
         InstabilityError
-            If the positions become non-finite.
+            If the positions or velocities become non-finite, or the total energy exceeds its
+            start by more than ``max_energy_growth`` x :attr:`energy_scale` (the growth is kept
+            in :attr:`last_energy_growth`).
         """
         ds = self.dt / self.substeps
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):   # checked just below
@@ -664,6 +614,7 @@ class XPBDSolver:
             self.n_steps += 1
             finite = bool(np.all(np.isfinite(self._x)) and np.all(np.isfinite(self._v)))
             growth = self.energy_growth() if finite else np.inf
+        self.last_energy_growth = growth
         if not finite or not growth <= self.max_energy_growth:
             what = ("non-finite positions" if not finite else
                     f"energy grew by {growth:.3g} x its scale {self.energy_scale:.3g} J")
@@ -724,8 +675,9 @@ class XPBDSolver:
     def constraint_values(self, positions=None) -> dict:
         """Constraint values at ``positions`` (m, 3) metres (default: current).
 
-        Returns ``{"C_D": (n,), "C_H": (n,)}`` (neohookean; ``C_H = det F - gamma``) or
-        ``{"C": (k,)}`` (distance; ``|x_j - x_i| - L``)."""
+        Returns ``{"C_D": (n,), "C_H": (n,)}`` (neohookean: ``C_D = sqrt(mean |F|^2)``,
+        ``C_H = det F - gamma``; corotational: ``C_D = |S (X - R X_ref)| / h``, ``C_H = det F - 1``)
+        or ``{"C": (k,)}`` (distance; ``|x_j - x_i| - L``)."""
         x = self._x if positions is None else as_points(positions, "positions")
         if self.constraints == "corotational":
             X = x[self.model.hexes]
@@ -733,7 +685,7 @@ class XPBDSolver:
             CD = corotational_terms(X, self.h, polar_rotation(F))
             return {"C_D": np.sqrt(np.einsum("nij,nij->n", CD, CD)), "C_H": np.linalg.det(F) - 1.0}
         if self.constraints != "distance":
-            CD, _, J, _ = self._terms(x[self.model.hexes], self.h)
+            CD, _, J, _ = neohookean_terms(x[self.model.hexes], self.h)
             return {"C_D": CD, "C_H": J - self._gamma}
         p = self._pairs
         return {"C": np.linalg.norm(x[p[:, 1]] - x[p[:, 0]], axis=1) - self._rest_len}
@@ -741,7 +693,7 @@ class XPBDSolver:
     def elastic_energy(self, positions=None) -> float:
         """Elastic energy of the constraints in J, zero at rest:
         neohookean ``sum V [mu/2 (C_D^2 - 3) + lam_nh/2 (C_H^2 - (mu/lam_nh)^2)]``;
-        distance ``sum k/2 C^2``."""
+        corotational ``sum V [mu C_D^2 + lambda/2 C_H^2]``; distance ``sum k/2 C^2``."""
         c = self.constraint_values(positions)
         if self.constraints == "corotational":
             return float(np.sum(c["C_D"] ** 2 / (2 * self._alphaD) + c["C_H"] ** 2 / (2 * self._alphaH)))
@@ -814,12 +766,13 @@ def stability_sweep(model: CubeModel, substep_sizes, *, duration: float = 0.5, f
     duration : float
         Simulated seconds per run.
     frame_dt : float, optional
-        Frame step, s (default: the substep itself when it is longer than 1/60 s, else 1/60 s
-        rounded to a whole number of substeps).
+        Frame step, s (default 1/60 s), rounded to a whole number of substeps; at least one
+        substep (so the frame step is the substep itself when the substep is longer).
     fixed : array_like, optional
         Fixed nodes (see :class:`XPBDSolver`).
     reference : array_like, shape (m, 3), optional
-        Static displacement (m) to compare the time-averaged displacement with.
+        Static displacement (m) to compare the final displacement with (see
+        :attr:`StabilityRow.error`).
     constraints, iterations, gravity, **kw
         Passed to :class:`XPBDSolver`.
 
@@ -830,11 +783,13 @@ def stability_sweep(model: CubeModel, substep_sizes, *, duration: float = 0.5, f
     import time as _time
 
     duration = positive_scalar(duration, "duration")
+    if frame_dt is not None:
+        frame_dt = positive_scalar(frame_dt, "frame_dt")
     ref = None if reference is None else as_points(reference, "reference")
     rows = []
     for ds in np.atleast_1d(np.asarray(substep_sizes, dtype=float)):
         ds = positive_scalar(float(ds), "substep_sizes")
-        n_sub = 1 if ds >= 1 / 60 else max(1, int(round((1 / 60 if frame_dt is None else frame_dt) / ds)))
+        n_sub = max(1, int(round((1 / 60 if frame_dt is None else frame_dt) / ds)))
         solver = XPBDSolver(model, ds * n_sub, substeps=n_sub, iterations=iterations, constraints=constraints,
                             fixed=fixed, gravity=gravity, **kw)
         n_steps = max(1, int(round(duration / solver.dt)))
@@ -843,7 +798,7 @@ def stability_sweep(model: CubeModel, substep_sizes, *, duration: float = 0.5, f
         try:
             for _ in range(n_steps):
                 st = solver.step()
-                growth = max(growth, solver.energy_growth())
+                growth = max(growth, solver.last_energy_growth)
         except InstabilityError:
             blew, growth = True, np.inf
         wall = _time.perf_counter() - t0

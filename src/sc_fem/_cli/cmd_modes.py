@@ -82,21 +82,12 @@ def register(sub) -> None:
 def _modal_options(args) -> dict:
     """Keyword arguments of :func:`sc_fem.modal.modal` from the command line."""
     from ..boundary import read_vertex_file
-    from ..errors import InputError
 
-    res = args.resolution
-    if res is not None and str(res).strip().lower() != "auto":
-        try:
-            res = int(res)
-        except ValueError:
-            raise InputError(f"--resolution must be an integer or 'auto', got {res!r}") from None
-    elif res is not None:
-        res = "auto"
     vopts = dict(scale=args.scale, fill=args.fill, method=args.voxel_method, keep=args.keep, youngs=args.youngs,
                  poisson=args.poisson, density=args.density, mass=args.mass)
     if args.pitch is not None:
         vopts["pitch"] = args.pitch
-    opts = dict(resolution=res, n_modes=args.modes, max_frequency=args.max_frequency, element=args.element,
+    opts = dict(resolution=args.resolution, n_modes=args.modes, max_frequency=args.max_frequency, element=args.element,
                 lumped=args.lumped, keep_rigid=args.keep_rigid, keep_lattice=args.keep_lattice,
                 method=args.solver, backend=args.backend, voxelize_options=vopts,
                 fix=list(args.fix) or None,
@@ -118,7 +109,8 @@ def precompute_summary(basis, timings: dict) -> str:
         ("cubes / DOFs", f"{basis.n_cubes:,} / {basis.n_dofs:,}  (resolution {basis.resolution}, "
                          f"pitch {basis.pitch:.4g}, element {basis.element})"),
         ("fixed", f"{basis.fixed.get('n_nodes', 0)} nodes ({', '.join(basis.fixed.get('specs', [])) or 'free'})"),
-        ("eigensolver", f"{e.get('method', '')} / {e.get('backend', '')}: {e.get('reason', '')}"),
+        ("eigensolver", f"{e.get('method', '')} / {e.get('backend', '')}: {e.get('reason', '')}; "
+                        f"{e.get('passes', 1)} solve(s) on {e.get('setups', 1)} factorization/hierarchy"),
         ("rigid modes", f"{e.get('n_rigid_found', 0)} found, {basis.n_rigid_removed} removed"),
         ("modes", f"{basis.n_modes} on {basis.n_vertices:,} vertices, damping {basis.damping_spec}"),
     ]
@@ -141,18 +133,16 @@ def run_precompute(args) -> int:
 
     if out.suffix.lower() != ".npz":
         raise InputError(f"the mode file must end in .npz, got {out.name!r} (give a folder ending in / for a batch)")
-    from ..mesh import load_mesh
     from ..modal import format_resolution_table, modal
     from ..modefile import save_modes
-    from .common import fix_specs_from_args
+    from ..models import expand_fix
 
     timings: dict = {}
     opts = _modal_options(args)
-    with stage("load", timings, args.quiet):
-        mesh = load_mesh(meshes[0])
-    opts["fix"] = fix_specs_from_args(args, mesh) or None
-    with stage("voxelize + modes", timings, args.quiet):
-        basis = modal(mesh, progress=not args.quiet, **opts)
+    if opts["fix"]:                                    # "default": the built-in model's supports
+        opts["fix"] = expand_fix(opts["fix"], meshes[0])
+    with stage("load + voxelize + modes", timings, args.quiet):
+        basis = modal(meshes[0], progress=not args.quiet, **opts)   # modal loads the mesh (and times it)
     with stage("write", timings, args.quiet):
         save_modes(basis, out)
     if not args.quiet:
@@ -171,7 +161,7 @@ def _run_batch(args, meshes: list[str], out: Path) -> int:
 
     opts = _modal_options(args)
     res = run_batch(meshes, out, options=opts, scheduler=args.scheduler, n_workers=args.workers,
-                    progress=not args.quiet)
+                    progress=not args.quiet, expand=False)
     if not args.quiet:
         w = max(len(Path(r["mesh"]).name) for r in res.rows)
         for r in res.rows:

@@ -16,12 +16,11 @@ from __future__ import annotations
 import argparse
 import json
 import time
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError, ModeFileError
+from ..errors import InputError
 
 RECON_KIND = "sc_fem.reconstruction"
 
@@ -50,28 +49,13 @@ def register(subparsers) -> None:
 
 def parse_frames(text: str, n_frames: int) -> np.ndarray:
     """``"0,2,4"`` -> array of >= 2 strictly increasing frame indices inside the animation."""
+    from ..reconstruct.pde import check_frame_indices
+
     try:
         idx = np.array([int(v) for v in str(text).split(",") if v.strip() != ""], dtype=int)
     except ValueError:
         raise InputError(f"--fit-frames must be comma-separated integers, got {text!r}") from None
-    if idx.size < 2:
-        raise InputError(f"--fit-frames needs at least 2 frames, got {text!r}")
-    if np.any(np.diff(idx) <= 0) or idx.min() < 0 or idx.max() >= n_frames:
-        raise InputError(f"--fit-frames must be strictly increasing indices in [0, {n_frames - 1}], got {text!r}")
-    return idx
-
-
-def _stored_curves(path: Path, n_frames: int):
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            if "curves" not in z.files:
-                return None
-            curves = np.asarray(z["curves"], dtype=float)
-    except (zipfile.BadZipFile, ValueError, OSError) as exc:
-        raise ModeFileError(f"{path}: cannot read curves: {exc}") from None
-    if curves.ndim != 4 or curves.shape[0] != n_frames or curves.shape[-1] != 3:
-        raise ModeFileError(f"{path}: curves must have shape ({n_frames}, C, P, 3), got {curves.shape}")
-    return curves
+    return check_frame_indices(idx, n_frames, name="--fit-frames")
 
 
 def markdown_report(frames, e_pde, e_bs, timings: dict, counts: dict, info: dict) -> str:
@@ -99,11 +83,11 @@ def run(args) -> int:
     anim = load_animation(path)
     fit_idx = parse_frames(args.fit_frames, anim.n_frames)
     frames = np.arange(fit_idx[0], fit_idx[-1] + 1)
-    curves = _stored_curves(path, anim.n_frames)
+    curves = anim.curves
     idx = None
     if curves is None:
         idx = rec.extract_curves(anim.rest_vertices, args.curves, args.points)
-        curves = np.asarray(anim.positions, dtype=float)[:, idx]          # (T, C, P, 3)
+        curves = anim.positions[:, idx].astype(np.float64)                # (T, C, P, 3)
     times = np.asarray(anim.times, dtype=float)
 
     t0 = time.perf_counter()
@@ -147,8 +131,8 @@ def run(args) -> int:
                                            "rigid_interpolation": args.rigid_interpolation,
                                            "remove_rigid": not args.no_rigid}))
     save_npz_atomic(args.output, **out)
-    report = markdown_report(frames, e_pde, e_bs, timings, counts, info)
     if args.report:
+        report = markdown_report(frames, e_pde, e_bs, timings, counts, info)
         with atomic_path(args.report) as tmp:
             tmp.write_text(report)
     print(f"PDE: mean E_A {e_pde.mean_E_A:.6f}, max E_M {e_pde.max_E_M:.6f} (r={model.r:.4g}, "

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import (add_fix_args, add_grid_args, add_material_args, add_mesh_arg, model_summary, stage,
-                     voxelize_from_args)
+from .common import (add_element_arg, add_fix_args, add_grid_args, add_material_args, add_mesh_arg,
+                     model_summary, stage, voxelize_from_args)
 
 OUTPUTS = (".npz", ".xdmf", ".mp4", ".gif")
 
@@ -41,7 +41,7 @@ def register(sub) -> None:
     p.add_argument("--constraints", choices=("neohookean", "corotational", "distance"), default="neohookean",
                    help="XPBD constraints (default neohookean; see sc_fem.xpbd)")
     p.add_argument("--xpbd-damping", type=float, default=0.0, help="XPBD mass-proportional damping, 1/s")
-    p.add_argument("--element", choices=("q1i", "q1", "q1sri"), default="q1i", help="element type (default q1i)")
+    add_element_arg(p)
     p.add_argument("--beta", type=float, default=None, help="Newmark beta (default 1/4, or the HHT value)")
     p.add_argument("--gamma", type=float, default=None, help="Newmark gamma (default 1/2, or the HHT value)")
     p.add_argument("--hht-alpha", type=float, default=0.0, help="HHT alpha in [-1/3, 0] (numerical damping)")
@@ -101,7 +101,7 @@ def build(args, mesh, model, W):
         loads.append(VertexForce(np.arange(len(verts)), np.array([fx, fy, fz]) / len(verts), half_sine(secs)))
     loadset = LoadSet(model, loads, points=verts, faces=mesh.faces, W=W)
     obs = obstacles_from(args.ground, args.sphere, args.box)
-    contact = Contact(model, verts, obs, fixed_nodes=fixed, W=W) if obs else None
+    contact = Contact(model, verts, obs, W=W) if obs else None      # the integrator binds it to `fixed`
     kw = {"fixed_nodes": fixed, "loads": loadset, "contact": contact, "rayleigh": tuple(args.rayleigh),
           "element": args.element}
     if args.method != "central":
@@ -146,7 +146,7 @@ def record_xpbd(args, mesh, model, W, n_steps: int, every: int, progress: bool):
             times.append(st.time)
             points.append(rest + (W @ (st.positions - X0)) / model.scale)
             energy.append(e.total)
-            mechanical.append(e.kinetic + e.elastic)
+            mechanical.append(e.mechanical)
     return Recording(times=np.array(times), u=np.zeros((0, model.n_nodes, 3)), energy=np.array(energy),
                      mechanical=np.array(mechanical), points=np.array(points), n_steps=n_steps,
                      seconds=time.perf_counter() - t1, setup_seconds=setup, method="xpbd", dt=args.dt,
@@ -190,6 +190,7 @@ def _write(out: Path, mesh, rec, meta: dict, magnify: float, fps: float, progres
 
 
 def run(args) -> int:
+    from .._validate import positive_scalar
     from ..embed import embed
     from ..errors import InputError
     from ..integrators import record
@@ -198,9 +199,7 @@ def run(args) -> int:
     if out.suffix.lower() not in OUTPUTS:
         raise InputError(f"unsupported output {out.name!r}: use {', '.join(OUTPUTS)}")
     for name in ("duration", "dt", "fps", "magnify"):
-        v = getattr(args, name)
-        if not (np.isfinite(v) and v > 0):
-            raise InputError(f"--{name} must be > 0, got {v!r}")
+        positive_scalar(getattr(args, name), f"--{name}")
     n_steps = int(round(args.duration / args.dt))
     if n_steps < 1:
         raise InputError(f"--duration {args.duration:g} s is shorter than one step of --dt {args.dt:g} s")

@@ -104,13 +104,16 @@ def fix_specs_from_args(args, mesh) -> list[str]:
 
 def fixed_nodes_from_args(args, model, mesh):
     """Node indices fixed by ``--fix`` / ``--fix-vertices`` (empty array when neither is given)."""
-    import numpy as np
-
     from ..boundary import fixed_nodes, read_vertex_file
 
     specs = fix_specs_from_args(args, mesh)
     verts = read_vertex_file(args.fix_vertices) if args.fix_vertices else None
-    if not specs and verts is None:
-        return np.zeros(0, dtype=np.int64)
-    return fixed_nodes(model, fix=specs, vertices=verts,
-                       mesh_vertices=None if verts is None else mesh.vertices)
+    return fixed_nodes(model, fix=specs, vertices=verts, mesh_vertices=mesh.vertices)
+
+
+def add_element_arg(p: argparse.ArgumentParser) -> None:
+    """``--element`` with the element types of :data:`sc_fem.elements.ELEMENTS`."""
+    from ..elements import DEFAULT_ELEMENT, ELEMENTS
+
+    p.add_argument("--element", choices=ELEMENTS, default=DEFAULT_ELEMENT,
+                   help=f"element type: {', '.join(ELEMENTS)} (default {DEFAULT_ELEMENT})")

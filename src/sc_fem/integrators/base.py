@@ -61,7 +61,9 @@ class TimeIntegrator:
     loads : LoadSet, optional
         External loads (default none).
     contact : Contact, optional
-        Obstacles; projected after every step.
+        Obstacles; projected after every step. The integrator keeps a copy bound to its
+        ``fixed_nodes`` (:meth:`~sc_fem.integrators.contact.Contact.with_fixed_nodes`), so the
+        projection never moves a fixed node.
     rayleigh : (float, float)
         Rayleigh coefficients ``(a0 [1/s], a1 [s])``: ``C = a0 M + a1 K``.
     lumped : bool
@@ -95,13 +97,19 @@ class TimeIntegrator:
         self.K = self.asm.stiffness()
         self.lumped = bool(lumped)
         self.M = self.asm.mass(lumped=self.lumped)
+        # inverse of the lumped (diagonal) mass, 1/kg; None for the consistent mass
+        self._minv = 1.0 / self.M.diagonal() if self.lumped else None
+        self._dt_crit = None
         self.setup_seconds = _time.perf_counter() - t0
         r = as_float_array(rayleigh, "rayleigh", (2,))
         if np.any(r < 0):
             raise InputError(f"rayleigh coefficients must be >= 0, got {r.tolist()}")
         self.rayleigh = (float(r[0]), float(r[1]))
         self.loads = loads if loads is not None else LoadSet(model)
-        self.contact = contact
+        if contact is not None and contact.model.n_nodes != model.n_nodes:
+            raise InputError(f"contact was built for a model with {contact.model.n_nodes} nodes, "
+                             f"this one has {model.n_nodes}")
+        self.contact = None if contact is None else contact.with_fixed_nodes(fn)
         m = model.n_nodes
         u = np.zeros((m, 3)) if u0 is None else as_float_array(u0, "u0", (m, 3)).copy()
         v = np.zeros((m, 3)) if v0 is None else as_float_array(v0, "v0", (m, 3)).copy()
@@ -110,7 +118,6 @@ class TimeIntegrator:
         self._mass_solver = None
         self._a = self._initial_acceleration()
         self.time, self.n_steps = 0.0, 0
-        self.last_contact = None
         self.max_contact_depth = -np.inf
 
     # ------------------------------------------------------------------ helpers
@@ -138,8 +145,8 @@ class TimeIntegrator:
 
     def solve_mass(self, r: np.ndarray) -> np.ndarray:
         """``M^-1 r`` on the free DOFs."""
-        if self.lumped:
-            return r / self.M.diagonal()
+        if self._minv is not None:
+            return self._minv * r
         if self._mass_solver is None:
             self._mass_solver = factorize(self.M, self.backend)
         return self._mass_solver.solve(r)
@@ -162,16 +169,11 @@ class TimeIntegrator:
         return State(time=self.time, u=self.asm.expand(self._u), v=self.asm.expand(self._v),
                      a=self.asm.expand(self._a), step=self.n_steps)
 
-    def energy(self, state: State | None = None) -> Energy:
-        """Kinetic, elastic and gravity energy of ``state`` (default: current), J."""
-        if state is None:
-            u, v, ufull = self._u, self._v, None
-        else:
-            u, v, ufull = self.asm.restrict(state.u), self.asm.restrict(state.v), state.u
-        if ufull is None:
-            ufull = self.asm.expand(u)
+    def energy(self) -> Energy:
+        """Kinetic, elastic and gravity energy of the current state, J."""
+        u, v = self._u, self._v
         return Energy(kinetic=0.5 * float(v @ (self.M @ v)), elastic=self.elastic_energy(u),
-                      gravity=self.loads.gravity_potential(ufull))
+                      gravity=self.loads.gravity_potential(self.asm.expand(u)))
 
     def step(self) -> State:
         """Advance one step ``dt`` and return the new state."""
@@ -185,7 +187,6 @@ class TimeIntegrator:
                 self._u, self._v = self.asm.restrict(uf), self.asm.restrict(vf)
                 self._a = self.solve_mass(self.external_force(t1) - self.internal_force(self._u)
                                           - self.damping(self._v))
-            self.last_contact = info
             self.max_contact_depth = max(self.max_contact_depth, info.max_depth)
         self.time, self.n_steps = t1, self.n_steps + 1
         return self.state
@@ -193,15 +194,13 @@ class TimeIntegrator:
     def _advance(self, u, v, a, t0, t1):   # pragma: no cover - abstract
         raise NotImplementedError
 
-    def run(self, n_steps: int):
-        """Yield the current state, then the state after each of ``n_steps`` steps."""
-        yield self.state
-        for _ in range(int(n_steps)):
-            yield self.step()
+    @property
+    def dt_crit(self) -> float:
+        """Stability limit ``2 / omega_max`` (s) of explicit central differences with lumped mass
+        on this model (:func:`sc_fem.integrators.central.critical_time_step`); computed on first
+        access (an eigenvalue solve) and kept."""
+        if self._dt_crit is None:
+            from .central import critical_time_step
 
-    def critical_time_step(self) -> float:
-        """Stability limit of explicit central differences on this model (s); see
-        :func:`sc_fem.integrators.central.critical_time_step`."""
-        from .central import critical_time_step
-
-        return critical_time_step(self.K, self.asm.mass(lumped=True))
+            self._dt_crit = critical_time_step(self.K, self.M if self.lumped else self.asm.mass(lumped=True))
+        return self._dt_crit

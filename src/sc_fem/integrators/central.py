@@ -68,7 +68,8 @@ class CentralDifference(TimeIntegrator):
     """Explicit central differences with lumped mass (see the module docstring).
 
     Parameters are those of :class:`~sc_fem.integrators.base.TimeIntegrator` (``lumped`` is
-    forced to True). :attr:`dt_crit` holds the stability limit (computed on first access).
+    forced to True). :attr:`~sc_fem.integrators.base.TimeIntegrator.dt_crit` is the stability
+    limit (computed on first access).
     """
 
     name = "central"
@@ -76,19 +77,7 @@ class CentralDifference(TimeIntegrator):
 
     def __init__(self, model, dt, **kw) -> None:
         kw["lumped"] = True
-        self._dt_crit = None
         super().__init__(model, dt, **kw)
-        self._minv = 1.0 / self.M.diagonal()
-
-    @property
-    def dt_crit(self) -> float:
-        """Stability limit ``2 / omega_max``, s."""
-        if self._dt_crit is None:
-            self._dt_crit = critical_time_step(self.K, self.M)
-        return self._dt_crit
-
-    def critical_time_step(self) -> float:
-        return self.dt_crit
 
     def _advance(self, u, v, a, t0, t1):
         dt = self.dt

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from typing import Callable, Sequence
 
 import numpy as np
+import scipy.sparse as sp
 
 from .._validate import as_float_array, as_points
 from ..errors import InputError
@@ -128,7 +129,9 @@ class LoadSet:
             from ..embed import embed
 
             W = embed(model, pts)
-        self.W = W
+        self.W = None if W is None else sp.csr_matrix(W)
+        if self.W is not None and pts is not None and self.W.shape != (len(pts), m):
+            raise InputError(f"W must have shape ({len(pts)}, {m}), got {self.W.shape}")
         for ld in loads:                                    # loop over a handful of loads
             if isinstance(ld, Gravity):
                 g = as_float_array(ld.g, "gravity", (3,))
@@ -138,9 +141,8 @@ class LoadSet:
                 idx = self._indices(ld.vertices, len(pts), "vertices")
                 f = np.broadcast_to(as_float_array(ld.force, "force"), (len(idx), 3)) if \
                     np.ndim(ld.force) == 1 else as_float_array(ld.force, "force", (len(idx), 3))
-                vf = np.zeros((len(pts), 3))
-                np.add.at(vf, idx, f)
-                self._timed.append((np.asarray(W.T @ vf), ld.time or _one))
+                # W^T of the vertex forces: only the rows of the loaded vertices (repeats add up)
+                self._timed.append((np.asarray(self.W[idx].T @ f), ld.time or _one))
             elif isinstance(ld, FacePressure):
                 self._need(pts, "FacePressure")
                 if faces is None:
@@ -150,10 +152,8 @@ class LoadSet:
                 p = np.broadcast_to(np.asarray(ld.pressure, dtype=float), (len(fidx),))
                 v = pts[tri[fidx]]                                        # (k, 3, 3)
                 an = 0.5 * np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]) * model.scale**2   # area * n, m^2
-                fv = np.repeat((-p[:, None] * an / 3.0), 3, axis=0)        # (3k, 3)
-                vf = np.zeros((len(pts), 3))
-                np.add.at(vf, tri[fidx].ravel(), fv)
-                self._timed.append((np.asarray(W.T @ vf), ld.time or _one))
+                fv = np.repeat((-p[:, None] * an / 3.0), 3, axis=0)        # (3k, 3), per face corner
+                self._timed.append((np.asarray(self.W[tri[fidx].ravel()].T @ fv), ld.time or _one))
             else:
                 raise InputError(f"unknown load {ld!r}: use Gravity, VertexForce or FacePressure")
 
@@ -170,15 +170,6 @@ class LoadSet:
         if a.min() < 0 or a.max() >= n:
             raise InputError(f"{name} indices must lie in [0, {n}), got range [{a.min()}, {a.max()}]")
         return a.astype(np.int64)
-
-    @property
-    def has_gravity(self) -> bool:
-        return bool(np.any(self.gravity_force))
-
-    @property
-    def is_zero(self) -> bool:
-        """True when there is no load at all."""
-        return not self.has_gravity and not self._timed
 
     def force(self, t: float) -> np.ndarray:
         """Total node forces at time ``t`` (s), shape (m, 3), N."""

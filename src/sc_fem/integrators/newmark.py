@@ -64,11 +64,6 @@ class Newmark(TimeIntegrator):
         self._S = None
         super().__init__(model, dt, **kw)
 
-    @property
-    def unconditionally_stable(self) -> bool:
-        """``2 beta >= gamma >= 1/2`` (linear, undamped)."""
-        return 2.0 * self.beta >= self.gamma >= 0.5
-
     # ------------------------------------------------------------------ hooks for non-linear models
     def tangent(self, u: np.ndarray):
         """Tangent stiffness at ``u`` (linear: ``K``)."""

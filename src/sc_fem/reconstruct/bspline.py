@@ -15,10 +15,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import BSpline
 
-from .._validate import as_float_array, positive_int
+from .._validate import positive_int
 from ..errors import InputError
-from .param import parametrize
-from .pde import _check_curves, _check_times
+from .param import check_u, parametrize
+from .pde import _check_curves, _check_times, check_frame_indices
 
 DEGREE = 3
 
@@ -108,11 +108,7 @@ def bspline_baseline(curves, times, fit_frames, n_control: int = 50, u=None) -> 
     x = _check_curves(curves, min_frames=1)
     t = _check_times(times, x.shape[0])
     n_control = positive_int(n_control, "n_control", minimum=DEGREE + 1)
-    idx = np.asarray(fit_frames)
-    if idx.ndim != 1 or idx.size < 2 or not np.issubdtype(idx.dtype, np.integer):
-        raise InputError(f"fit_frames must be >= 2 integer frame indices, got {fit_frames!r}")
-    if idx.min() < 0 or idx.max() >= x.shape[0] or np.any(np.diff(idx) <= 0):
-        raise InputError(f"fit_frames must be strictly increasing indices in [0, {x.shape[0] - 1}], got {idx.tolist()}")
+    idx = check_frame_indices(fit_frames, x.shape[0])
     if n_control > x.shape[2]:
         raise InputError(f"n_control ({n_control}) must not exceed the points per curve ({x.shape[2]})")
     xf = x[idx]                                                    # (F, C, P, 3)
@@ -120,10 +116,7 @@ def bspline_baseline(curves, times, fit_frames, n_control: int = 50, u=None) -> 
     if u is None:
         u = parametrize(xf.reshape(f * c, p, 3), "arclength").reshape(f, c, p)
     else:
-        u = as_float_array(u, "u")
-        if u.shape not in ((p,), (c, p)) or u.min() < 0 or u.max() > 1:
-            raise InputError(f"u must have shape ({p},) or ({c}, {p}) with values in [0, 1], got shape {u.shape}")
-        u = np.broadcast_to(u, (f, c, p)).copy()
+        u = np.broadcast_to(check_u(u, c, p), (f, c, p)).copy()
     knots = clamped_knots(n_control)
     cols, vals = _local_basis(u, knots)
     # normal equations B^T B c = B^T x, assembled from the 4 non-zeros per row (B-spline

@@ -18,9 +18,21 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validate import as_float_array
 from ..errors import InputError
 
 PARAMETRIZATIONS = ("paper", "arclength")
+
+
+def check_u(u, n_curves: int, n_points: int) -> np.ndarray:
+    """Validate explicit parameter values: shape (P,) (shared by every curve) or (C, P), finite,
+    in [0, 1]. Returns a new (C, P) float64 array."""
+    uu = as_float_array(u, "u")
+    if uu.shape not in ((n_points,), (n_curves, n_points)):
+        raise InputError(f"u must have shape ({n_points},) or ({n_curves}, {n_points}), got {uu.shape}")
+    if uu.min() < 0 or uu.max() > 1:
+        raise InputError(f"u must have values in [0, 1], got range [{uu.min():g}, {uu.max():g}]")
+    return np.broadcast_to(uu, (n_curves, n_points)).copy()
 
 
 def parametrize(curves, method: str = "paper") -> np.ndarray:

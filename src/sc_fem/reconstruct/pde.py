@@ -31,7 +31,7 @@ from scipy.optimize import minimize
 from .._validate import as_float_array, positive_scalar
 from ..errors import InputError
 from .basis import paper_scale, space_basis, time_basis
-from .param import PARAMETRIZATIONS, parametrize
+from .param import PARAMETRIZATIONS, check_u, parametrize
 from .rigid import RIGID_INTERPOLATIONS, RigidMotion
 from .rigid import remove_rigid as _remove_rigid
 
@@ -164,54 +164,90 @@ def _space_side(x: np.ndarray, u: np.ndarray, r: float):
     return (qu, su, vtu, un), xu, np.einsum("cwfp,cwfp->f", out, out)
 
 
-def _project(xu: np.ndarray, su: np.ndarray, tb: np.ndarray, rcond: float):
+def _time_side(s: np.ndarray, alpha: float, criterion: str):
+    """Time basis and its column-normalised SVD(s) for one ``alpha`` (reused across r).
+
+    Returns ``(tb, svd)`` with ``svd`` the SVD of ``tb`` (``"residual"``) or a list of
+    ``(j, keep, svd of tb[keep])`` per held-out interior frame ``j`` (``"loo"``).
+    """
+    tb = time_basis(s, alpha)
+    if criterion == "residual":
+        return tb, _svd(tb)
+    keeps = [np.arange(len(s)) != j for j in range(1, len(s) - 1)]   # held-out frames (a handful)
+    return tb, [(j + 1, keep, _svd(tb[keep])) for j, keep in enumerate(keeps)]
+
+
+def _project(xu: np.ndarray, su: np.ndarray, tsvd, rcond: float):
     """Truncated projection onto span(T (x) U) of data already in U's orthonormal coordinates.
 
-    The Kronecker design matrix has singular values ``st_a * su_b``; pairs below ``rcond`` times
-    the largest are dropped *jointly* (truncating T and U separately would leave a product
-    condition number up to cond(T) * cond(U) and lose all precision in the coefficients).
-    Returns ``z`` (C, 3, 4, 8) coordinates in the orthonormal bases, the T factors and the mask.
+    ``tsvd = _svd(T)``. The Kronecker design matrix has singular values ``st_a * su_b``; pairs
+    below ``rcond`` times the largest are dropped *jointly* (truncating T and U separately would
+    leave a product condition number up to cond(T) * cond(U) and lose all precision in the
+    coefficients). Returns ``z`` (C, 3, 4, 8) coordinates in the orthonormal bases and the mask.
     """
-    qt, st, vtt, tn = _svd(tb)
+    qt, st, vtt, tn = tsvd
     prod = st[None, :, None] * su[:, None, :]                           # (C, 4, 8)
     mask = prod > rcond * prod.max(axis=(1, 2), keepdims=True)
     z = (qt.T @ xu) * mask[:, None]
-    return z, (qt, st, vtt, tn), mask
+    return z, mask
 
 
-def _solve(x: np.ndarray, s: np.ndarray, u: np.ndarray, r: float, alpha: float, rcond: float) -> np.ndarray:
-    """Coefficients (C, 3, 4, 8) of the separable least squares for data ``x`` (C, 3, F, P)."""
-    (qu, su, vtu, un), xu, _ = _space_side(x, u, r)
-    z, (qt, st, vtt, tn), mask = _project(xu, su, time_basis(s, alpha), rcond)
+def _solve(x: np.ndarray, s: np.ndarray, u: np.ndarray, r: float, alpha: float, rcond: float,
+           space=None) -> np.ndarray:
+    """Coefficients (C, 3, 4, 8) of the separable least squares for data ``x`` (C, 3, F, P);
+    ``space`` is ``_space_side(x, u, r)`` if already computed."""
+    (qu, su, vtu, un), xu, _ = _space_side(x, u, r) if space is None else space
+    tsvd = _svd(time_basis(s, alpha))
+    qt, st, vtt, tn = tsvd
+    z, mask = _project(xu, su, tsvd, rcond)
     inv = np.where(mask, 1.0 / np.where(mask, st[None, :, None] * su[:, None, :], 1.0), 0.0)
     coef = vtt.T @ (z * inv[:, None]) @ vtu[:, None]
     return coef / (tn[None, None, :, None] * un[:, None, None, :])
 
 
-def _objective(space, s: np.ndarray, alpha: float, rcond: float, criterion: str) -> float:
+def _objective(space, tside, rcond: float, criterion: str) -> float:
     """Sum of squared residuals (``"residual"``) or of leave-one-interior-frame-out errors,
-    given the space side ``space = _space_side(x, u, r)``."""
+    given the space side ``space = _space_side(x, u, r)`` and ``tside = _time_side(s, alpha,
+    criterion)``."""
     (qu, su, *_), xu, out_u = space
-    tb = time_basis(s, alpha)
+    tb, tsvd = tside
     if criterion == "residual":
-        z, (qt, *_), _ = _project(xu, su, tb, rcond)
-        return float(out_u.sum() + np.sum((xu - qt @ z) ** 2))
+        z, _ = _project(xu, su, tsvd, rcond)
+        return float(out_u.sum() + np.sum((xu - tsvd[0] @ z) ** 2))
     total = 0.0
-    for j in range(1, len(s) - 1):     # loop over held-out frames (a handful)
-        keep = np.arange(len(s)) != j
-        z, (qt, st, vtt, tn), _ = _project(xu[:, :, keep], su, tb[keep], rcond)
+    for j, keep, (qt, st, vtt, tn) in tsvd:     # loop over held-out frames (a handful)
+        z, _ = _project(xu[:, :, keep], su, (qt, st, vtt, tn), rcond)
         g = (vtt @ (tb[j] / tn)) / st                                   # row j in the SVD basis
         total += float(np.sum((xu[:, :, j] - np.einsum("a,cwab->cwb", g, z)) ** 2) + out_u[j])
     return total
 
 
-def _search(x, s, u, r, alpha, bounds_r, bounds_a, grid, rcond, criterion):
+class _SpaceCache:
+    """The last few ``_space_side(x, u, r)`` by ``r``: the space side (basis, SVD, projection of
+    the data) is the expensive half of an objective evaluation and is reused whenever only
+    ``alpha`` changes (``r`` given, or the alpha-steps of the refinement)."""
+
+    def __init__(self, x: np.ndarray, u: np.ndarray, size: int = 4) -> None:
+        self.x, self.u, self.size = x, u, size
+        self._store: dict[float, tuple] = {}
+
+    def __call__(self, r: float):
+        key = float(r)
+        if key not in self._store:
+            if len(self._store) >= self.size:
+                self._store.pop(next(iter(self._store)))
+            self._store[key] = _space_side(self.x, self.u, key)
+        return self._store[key]
+
+
+def _search(x, s, space_of: _SpaceCache, r, alpha, bounds_r, bounds_a, grid, rcond, criterion):
     rg = np.array([r]) if r is not None else np.geomspace(*bounds_r, grid[0])
     ag = np.array([alpha]) if alpha is not None else np.geomspace(*bounds_a, grid[1])
+    tsides = [_time_side(s, ai, criterion) for ai in ag]               # time side once per alpha
     obj = np.empty((len(rg), len(ag)))
     for i, ri in enumerate(rg):                     # grid loops (small); space side once per r
-        space = _space_side(x, u, ri)
-        obj[i] = [_objective(space, s, ai, rcond, criterion) for ai in ag]
+        space = space_of(ri)
+        obj[i] = [_objective(space, ts, rcond, criterion) for ts in tsides]
     i, j = np.unravel_index(np.argmin(obj), obj.shape)
     free = [k for k, v in enumerate((r, alpha)) if v is None]
     start = np.log([rg[i], ag[j]])
@@ -223,7 +259,7 @@ def _search(x, s, u, r, alpha, bounds_r, bounds_a, grid, rcond, criterion):
         p = start.copy()
         p[free] = z
         r_, a_ = np.exp(p)
-        return np.log(_objective(_space_side(x, u, r_), s, a_, rcond, criterion) + floor)
+        return np.log(_objective(space_of(r_), _time_side(s, a_, criterion), rcond, criterion) + floor)
 
     f0 = f(start[free])
     res = minimize(f, start[free], method="L-BFGS-B", bounds=[tuple(lims[k]) for k in free],
@@ -237,16 +273,26 @@ def _search(x, s, u, r, alpha, bounds_r, bounds_a, grid, rcond, criterion):
 
 # ----------------------------------------------------------------------------- public fit
 def _check_curves(curves, name: str = "curves", min_frames: int = 2) -> np.ndarray:
-    x = as_float_array(curves, name, finite=False)
+    x = as_float_array(curves, name)
     if x.ndim != 4 or x.shape[-1] != 3:
         raise InputError(f"{name} must have shape (n_frames, n_curves, n_points, 3), got {x.shape}")
     if x.shape[0] < min_frames:
         raise InputError(f"{name} has {x.shape[0]} frame(s); at least {min_frames} are needed to fit motion")
     if x.shape[1] < 1 or x.shape[2] < 8:
         raise InputError(f"{name} needs >= 1 curve of >= 8 points (8 space functions), got {x.shape[1:3]}")
-    if not np.all(np.isfinite(x)):
-        raise InputError(f"{name} contains {int(np.count_nonzero(~np.isfinite(x)))} non-finite value(s)")
     return x
+
+
+def check_frame_indices(frames, n_frames: int, name: str = "fit_frames") -> np.ndarray:
+    """>= 2 strictly increasing integer frame indices in ``[0, n_frames)``, as an int array."""
+    idx = np.asarray(frames)
+    if idx.ndim != 1 or (idx.size and not np.issubdtype(idx.dtype, np.integer)):
+        raise InputError(f"{name} must be a 1-D sequence of integer frame indices, got {frames!r}")
+    if idx.size < 2:
+        raise InputError(f"{name} needs at least 2 frames, got {idx.tolist()}")
+    if idx.min() < 0 or idx.max() >= n_frames or np.any(np.diff(idx) <= 0):
+        raise InputError(f"{name} must be strictly increasing indices in [0, {n_frames - 1}], got {idx.tolist()}")
+    return idx.astype(np.int64)
 
 
 def _check_times(times, n_frames: int) -> np.ndarray:
@@ -279,7 +325,7 @@ def fit(curves, times, r: float | None = None, alpha: float | None = None, remov
     parametrization : {"paper", "arclength"}
         How ``u`` is computed from the first (aligned) frame; see :mod:`.param`.
     u : array_like, shape (P,) or (C, P), optional
-        Explicit parameter values (override ``parametrization``).
+        Explicit parameter values in [0, 1] (override ``parametrization``).
     rigid_interpolation : {"cubic", "linear"}
         Interpolation of the rigid motion between fitted frames (see :mod:`.rigid`).
     criterion : {"residual", "loo"}
@@ -320,21 +366,18 @@ def fit(curves, times, r: float | None = None, alpha: float | None = None, remov
         uu = parametrize(aligned[0], parametrization)
         pname = parametrization
     else:
-        uu = as_float_array(u, "u")
-        if uu.shape == (n_p,):
-            uu = np.broadcast_to(uu, (n_c, n_p)).copy()
-        if uu.shape != (n_c, n_p):
-            raise InputError(f"u must have shape ({n_p},) or ({n_c}, {n_p}), got {uu.shape}")
+        uu = check_u(u, n_c, n_p)
         pname = "explicit"
     data = np.ascontiguousarray(aligned.transpose(1, 3, 0, 2))    # (C, 3, F, P)
     search = None
+    space_of = _SpaceCache(data, uu)
     if r is None or alpha is None:
         ds = float(np.max(np.diff(s)))
         ab = alpha_bounds if alpha_bounds is not None else (0.05, np.pi / ds)
         if not (0 < r_bounds[0] < r_bounds[1] and 0 < ab[0] < ab[1]):
             raise InputError(f"bounds must be 0 < low < high, got r_bounds={r_bounds}, alpha_bounds={ab}")
-        r, alpha, search = _search(data, s, uu, r, alpha, r_bounds, ab, grid, rcond, criterion)
-    coef = _solve(data, s, uu, r, alpha, rcond)
+        r, alpha, search = _search(data, s, space_of, r, alpha, r_bounds, ab, grid, rcond, criterion)
+    coef = _solve(data, s, uu, r, alpha, rcond, space=space_of(r))
     fitted = np.einsum("fi,cwij,cpj->cwfp", time_basis(s, alpha), coef, space_basis(uu, r))
     rms = float(np.sqrt(np.mean((fitted - data) ** 2)))
     return PDEModel(coefficients=coef, r=float(r), alpha=float(alpha), u=uu, t0=float(t[0]),

@@ -44,11 +44,6 @@ class RigidAlignment:
     rotations: np.ndarray
     anchors: np.ndarray
 
-    @property
-    def pivot(self) -> np.ndarray:
-        """(C, 3) first points at frame 0, the point the curves are rotated about."""
-        return self.anchors[0]
-
 
 def kabsch(q: np.ndarray, p: np.ndarray, reg: float = 1e-6) -> np.ndarray:
     """Batched best rotation ``R`` minimising ``sum_k |R q_k - p_k|^2`` (closed form of Eq. 23).
