@@ -41,7 +41,7 @@ _LAZY: dict[str, str] = {
     # modal analysis
     "ModalBasis": ".modal", "save_modes": ".modefile", "load_modes": ".modefile",
     "ModalPlayer": ".player", "run_batch": ".batch", "BatchResult": ".batch",
-    "solve_eigen": ".eigen", "EigenResult": ".eigen",
+    "solve_eigen": ".eigen", "EigenResult": ".eigen", "EigenSolver": ".eigen",
     # dynamics (loads and contact classes live in sc_fem.integrators)
     "simulate": ".integrators", "make_integrator": ".integrators",
     "Newmark": ".integrators.newmark", "Corotational": ".integrators.corotational",

@@ -145,16 +145,20 @@ def rigid_body_modes(points: np.ndarray, free_dofs: np.ndarray | None = None) ->
     """
     p = np.asarray(points, dtype=float)
     q = p - p.mean(axis=0)
-    q = q / max(float(np.abs(q).max()), 1e-300)
-    m = len(p)
-    B = np.zeros((m, 3, 6))
+    B = rigid_block(q / max(float(np.abs(q).max()), 1e-300)).reshape(3 * len(p), 6)
+    return B if free_dofs is None else B[free_dofs]
+
+
+def rigid_block(q: np.ndarray) -> np.ndarray:
+    """Rigid-body displacement of points at offsets ``q`` (n, 3) from a centre: shape (n, 3, 6),
+    ``[I, -[q]x]`` (translations x, y, z, then rotations about x, y, z)."""
+    B = np.zeros((len(q), 3, 6))
     B[:, [0, 1, 2], [0, 1, 2]] = 1.0
-    x, y, z = q.T
+    x, y, z = np.asarray(q, dtype=float).T
     B[:, 1, 3], B[:, 2, 3] = -z, y
     B[:, 0, 4], B[:, 2, 4] = z, -x
     B[:, 0, 5], B[:, 1, 5] = -y, x
-    B = B.reshape(3 * m, 6)
-    return B if free_dofs is None else B[free_dofs]
+    return B
 
 
 def rayleigh_ritz(K, M, X: np.ndarray, k: int | None = None

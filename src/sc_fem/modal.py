@@ -222,14 +222,12 @@ def damping_ratios(omegas: np.ndarray, *, damping_ratio=None, rayleigh=None) -> 
 
 
 def _unsupported_parts(model: CubeModel, fixed: np.ndarray) -> int:
-    """Connected parts (through shared cubes) that contain no fixed node."""
-    from .static import _node_components
+    """Connected parts whose fixed nodes leave some rigid motion free (each may have up to 6)."""
+    from .static import held_parts, node_parts
 
-    labels = _node_components(model)
+    labels = node_parts(model)
     n_parts = int(labels.max()) + 1
-    held = np.zeros(n_parts, dtype=bool)
-    held[labels[fixed]] = True
-    return int(n_parts - held.sum())
+    return int(n_parts - held_parts(model, labels, fixed, n_parts).sum())
 
 
 def _material_record(model: CubeModel) -> dict:

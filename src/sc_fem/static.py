@@ -24,6 +24,7 @@ from scipy.sparse.csgraph import connected_components
 from ._validate import as_float_array, as_points
 from .assemble import Assembler
 from .boundary import fixed_dofs, fixed_nodes
+from .eigen import rigid_block
 from .elements import DEFAULT_ELEMENT, check_element
 from .errors import BoundaryConditionError, InputError, SolverError
 from .lattice import CubeModel
@@ -77,8 +78,8 @@ class StaticResult:
         return float(np.linalg.norm(self.displacements, axis=1).max())
 
 
-def _node_components(model: CubeModel) -> np.ndarray:
-    """Label of each node's part (nodes connected through shared cubes), shape (m,)."""
+def node_parts(model: CubeModel) -> np.ndarray:
+    """Label of each node's part (nodes connected through shared cubes, even at one node), shape (m,)."""
     h = model.hexes
     rows = np.repeat(h[:, 0], 7)
     cols = h[:, 1:].ravel()
@@ -86,8 +87,9 @@ def _node_components(model: CubeModel) -> np.ndarray:
     return connected_components(g, directed=False)[1]
 
 
-def _rigid_rank_ok(model: CubeModel, labels: np.ndarray, fixed: np.ndarray, n_parts: int) -> np.ndarray:
-    """Per part: do the fixed nodes suppress all 6 rigid motions? shape (n_parts,) bool."""
+def held_parts(model: CubeModel, labels: np.ndarray, fixed: np.ndarray, n_parts: int) -> np.ndarray:
+    """Per part (``labels`` from :func:`node_parts`): do the fixed nodes suppress all 6 rigid motions?
+    shape (n_parts,) bool (a part fixed at one node, or along one line, is not held)."""
     if len(fixed) == 0:
         return np.zeros(n_parts, dtype=bool)
     lab = labels[fixed]
@@ -96,12 +98,7 @@ def _rigid_rank_ok(model: CubeModel, labels: np.ndarray, fixed: np.ndarray, n_pa
     cen = np.stack([np.bincount(lab, p[:, k], minlength=n_parts) for k in range(3)], 1) / np.maximum(cnt, 1)[:, None]
     q = p - cen[lab]
     # 3x6 block [I, -[q]x] of the rigid modes at each fixed node; G = sum B^T B per part
-    B = np.zeros((len(q), 3, 6))
-    B[:, [0, 1, 2], [0, 1, 2]] = 1.0
-    x, y, z = q.T
-    B[:, 0, 4], B[:, 0, 5] = z, -y
-    B[:, 1, 3], B[:, 1, 5] = -z, x
-    B[:, 2, 3], B[:, 2, 4] = y, -x
+    B = rigid_block(q)
     BtB = np.einsum("nki,nkj->nij", B, B).reshape(len(q), 36)
     G = np.stack([np.bincount(lab, BtB[:, k], minlength=n_parts) for k in range(36)], 1).reshape(n_parts, 6, 6)
     ev = np.linalg.eigvalsh(G)
@@ -179,9 +176,9 @@ def solve_static(model: CubeModel, *, element: str = DEFAULT_ELEMENT, fix=None, 
     fixed = fixed_nodes(model, fix, vertices=fix_vertices, mesh_embedding=emb)
 
     # parts that are not held: error if loaded, pin if unloaded
-    labels = _node_components(model)
+    labels = node_parts(model)
     n_parts = int(labels.max()) + 1
-    held = _rigid_rank_ok(model, labels, fixed, n_parts)
+    held = held_parts(model, labels, fixed, n_parts)
     load = np.bincount(labels, np.abs(f).sum(axis=1), minlength=n_parts)
     scale = max(np.abs(f).sum(), 1e-300)
     loaded = load > 1e-12 * scale

@@ -10,7 +10,7 @@ import os
 import sys
 from pathlib import Path
 
-from .common import add_fix_args, add_grid_args, add_material_args, add_mesh_arg, stage
+from .common import add_element_arg, add_fix_args, add_grid_args, add_material_args, add_mesh_arg, stage, voxelize_options
 
 
 def register(sub) -> None:
@@ -30,7 +30,7 @@ def register(sub) -> None:
     g.add_argument("--max-frequency", type=float, default=None, metavar="HZ",
                    help="all modes below this frequency (e.g. half the playback frame rate)")
     add_fix_args(p)
-    p.add_argument("--element", choices=("q1i", "q1", "q1sri"), default="q1i", help="element type (default q1i)")
+    add_element_arg(p)
     add_material_args(p)
     d = p.add_mutually_exclusive_group()
     d.add_argument("--damping", type=float, default=None, metavar="ZETA",
@@ -83,10 +83,7 @@ def _modal_options(args) -> dict:
     """Keyword arguments of :func:`sc_fem.modal.modal` from the command line."""
     from ..boundary import read_vertex_file
 
-    vopts = dict(scale=args.scale, fill=args.fill, method=args.voxel_method, keep=args.keep, youngs=args.youngs,
-                 poisson=args.poisson, density=args.density, mass=args.mass)
-    if args.pitch is not None:
-        vopts["pitch"] = args.pitch
+    vopts = {k: v for k, v in voxelize_options(args).items() if not (k == "pitch" and v is None)}
     opts = dict(resolution=args.resolution, n_modes=args.modes, max_frequency=args.max_frequency, element=args.element,
                 lumped=args.lumped, keep_rigid=args.keep_rigid, keep_lattice=args.keep_lattice,
                 method=args.solver, backend=args.backend, voxelize_options=vopts,

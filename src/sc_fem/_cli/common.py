@@ -47,14 +47,19 @@ def add_material_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mass", type=float, default=None, help="total mass in kg (overrides density)")
 
 
-def voxelize_from_args(args, mesh=None, resolution=None):
+def voxelize_options(args) -> dict:
+    """Keyword arguments of :func:`sc_fem.voxelize` from the grid/material options, except ``resolution``."""
+    return dict(pitch=args.pitch, scale=args.scale, fill=args.fill, method=args.voxel_method, keep=args.keep,
+                youngs=args.youngs, poisson=args.poisson, density=args.density, mass=args.mass)
+
+
+def voxelize_from_args(args, mesh=None):
     """Run :func:`sc_fem.voxelize` with the grid/material options of ``args``."""
     from ..voxelize import voxelize
 
-    res = args.resolution if resolution is None else resolution
+    res = args.resolution
     return voxelize(mesh if mesh is not None else args.mesh, resolution=None if res is None else int(res),
-                    pitch=args.pitch, scale=args.scale, fill=args.fill, method=args.voxel_method, keep=args.keep,
-                    youngs=args.youngs, poisson=args.poisson, density=args.density, mass=args.mass)
+                    **voxelize_options(args))
 
 
 def model_summary(model) -> str:
@@ -95,18 +100,12 @@ def add_fix_args(p: argparse.ArgumentParser) -> None:
                    help="text file of source-mesh vertex indices (one a line); their cubes' nodes are fixed")
 
 
-def fix_specs_from_args(args, mesh) -> list[str]:
-    """The ``--fix`` specs with ``default`` expanded to the built-in model's supports."""
-    from ..models import expand_fix
-
-    return expand_fix(args.fix, str(mesh.metadata.get("source", "")))
-
-
 def fixed_nodes_from_args(args, model, mesh):
     """Node indices fixed by ``--fix`` / ``--fix-vertices`` (empty array when neither is given)."""
     from ..boundary import fixed_nodes, read_vertex_file
+    from ..models import expand_fix
 
-    specs = fix_specs_from_args(args, mesh)
+    specs = expand_fix(args.fix, str(mesh.metadata.get("source", "")))
     verts = read_vertex_file(args.fix_vertices) if args.fix_vertices else None
     return fixed_nodes(model, fix=specs, vertices=verts, mesh_vertices=mesh.vertices)
 
