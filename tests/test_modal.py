@@ -205,8 +205,8 @@ def test_resolution_auto_picks_the_coarsest_converged_grid(monkeypatch):
 # identical to ~1e-12 with the splu and cholmod backends. Produced by
 #   .venv/bin/python -c "from sc_fem.modal import modal; print(modal('builtin:chair', resolution=16, n_modes=4,
 #   fix='z<min+0.01', backend='splu').frequencies.tolist())"   (and bridge: resolution=24, fix='z<min+0.05')
-CHAIR_R16_HZ = [23.47312404676424, 27.48071831896546, 44.5617488997959, 87.9267254127033]
-BRIDGE_R24_HZ = [38.1823754805751, 45.34084398912874, 56.23489258848185, 60.90914319957041]
+CHAIR_R16_HZ = [8.157053975596876, 8.313978648691968, 14.006400587481103, 30.434407910299083]
+BRIDGE_R24_HZ = [13.694105958371383, 17.431763422980968, 20.61043235520006, 20.875847604076363]
 
 
 def test_builtin_chair_feet_fixed_and_bridge_produce_modes():

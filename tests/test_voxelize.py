@@ -24,7 +24,7 @@ def test_box_multiple_of_pitch_gives_exact_cube_count():
     assert tuple(m.dims) == (8, 4, 2) and m.n_cubes == 64
     m2 = sc_fem.voxelize(box_mesh([1.0, 0.5, 0.25]), resolution=8, fill="solid")
     assert m2.n_cubes == 64 and m2.pitch == pytest.approx(0.125)
-    shell = sc_fem.voxelize(box_mesh([1.0, 0.5, 0.25]), resolution=8)
+    shell = sc_fem.voxelize(box_mesh([1.0, 0.5, 0.25]), resolution=8, fill="surface")
     assert shell.n_cubes == 64          # 2 cubes thick: every cube touches the surface
 
 
@@ -69,9 +69,11 @@ def test_total_mass_is_conserved_and_split_by_area():
     mesh = sc_fem.load_mesh("builtin:chair")
     m = sc_fem.voxelize(mesh, resolution=24, mass=3.5)
     assert m.total_mass == pytest.approx(3.5, rel=1e-12)
-    # surface samples: the model's mass is rho * area * thickness (default thickness = h)
-    m2 = sc_fem.voxelize(mesh, resolution=24, density=900.0, keep="all")
-    assert m2.total_mass == pytest.approx(900.0 * mesh.area * m2.h, rel=1e-9)
+    # shells: rho * area * thickness, plus the floor volume of cubes only a vertex reaches
+    m2 = sc_fem.voxelize(mesh, resolution=24, density=900.0, keep="all", fill="surface", shell_thickness=0.004)
+    floor = m2.info["floor_cubes"] * m2.pitch**3 / (2 * 4**3)
+    assert m2.info["shell_parts"] == 9 and m2.info["floor_cubes"] < 0.05 * m2.n_cubes
+    assert m2.total_mass == pytest.approx(900.0 * (mesh.area * 0.004 + floor), rel=1e-9)
 
 
 def test_solid_mass_is_density_times_volume():
@@ -85,13 +87,18 @@ def test_per_face_and_callable_materials_are_mass_averaged():
     b = box_mesh([1.0, 1.0, 1.0], corner=(1.0, 0.0, 0.0))
     mesh = sc_fem.load_mesh((np.vstack([a.vertices, b.vertices]), np.vstack([a.faces, b.faces + 8])))
     E = np.r_[np.full(12, 1e6), np.full(12, 3e6)]
-    m = sc_fem.voxelize(mesh, pitch=0.5, youngs=E, poisson=0.3, density=1000.0)
+    # shells: every sample carries its face's material
+    m = sc_fem.voxelize(mesh, pitch=0.5, youngs=E, poisson=0.3, density=1000.0, fill="surface")
     left = m.cell_centers[:, 0] < 1.0       # samples on the shared plane x = 1 hash to the upper cell
     right = m.cell_centers[:, 0] > 1.5
     np.testing.assert_allclose(m.youngs[left], 1e6)
     np.testing.assert_allclose(m.youngs[right], 3e6)
     mid = ~left & ~right            # the cubes just above x = 1 hold samples of both boxes
     assert np.all((m.youngs[mid] > 1e6) & (m.youngs[mid] < 3e6))
+    # solids: volume samples take the material of the nearest face
+    solid = sc_fem.voxelize(mesh, pitch=0.5, youngs=E, poisson=0.3, density=1000.0, fill="solid")
+    np.testing.assert_allclose(solid.youngs[solid.cell_centers[:, 0] < 0.5], 1e6)
+    np.testing.assert_allclose(solid.youngs[solid.cell_centers[:, 0] > 1.5], 3e6)
     # callable of position, solid fill: interior volume samples see the field too
     m2 = sc_fem.voxelize(a, pitch=0.25, fill="solid", youngs=lambda p: 1e6 * (1 + p[:, 2]))
     np.testing.assert_allclose(m2.youngs, 1e6 * (1 + m2.cell_centers[:, 2]), rtol=1e-12)
@@ -111,12 +118,16 @@ def test_bad_material(kw, match):
 def test_solid_fill_of_closed_and_leaky_shells():
     closed = sc_fem.voxelize(box_mesh([1, 1, 1]), resolution=10, fill="solid")
     assert closed.n_cubes == 1000
-    shell = sc_fem.voxelize(box_mesh([1, 1, 1]), resolution=10)
+    assert closed.total_mass == pytest.approx(1000.0, rel=1e-9)      # rho V, default rho = 1000
+    shell = sc_fem.voxelize(box_mesh([1, 1, 1]), resolution=10, fill="surface")
     assert shell.n_cubes == 1000 - 8**3
     open_box = box_mesh([1, 1, 1])
     open_box.update_faces(np.abs(open_box.face_normals[:, 2] - 1) > 1e-9)   # remove the lid: a big hole
+    # the winding number still sees the inside below the missing lid (no flood-fill leak) ...
     leaky = sc_fem.voxelize(open_box, resolution=10, fill="solid")
-    assert leaky.n_cubes < 1000          # documented: the flood fill leaks through holes > 1 pitch
+    assert leaky.n_cubes == 1000 and leaky.total_mass == pytest.approx(1000.0, rel=0.01)
+    # ... and "auto" calls a cup missing one side of six closed (closure 5/6 > 3/4)
+    assert sc_fem.voxelize(open_box, resolution=10).info["solid_parts"] == 1
 
 
 def test_components_keep_and_connectivity():

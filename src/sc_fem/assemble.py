@@ -26,7 +26,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from ._validate import as_float_array
-from .elements import CENTRE_RULE, DEFAULT_ELEMENT, check_element, reference_mass, stiffness_chunks
+from .elements import (CENTRE_RULE, DEFAULT_ELEMENT, check_element, cube_stiffness_chunks, moment_mass,
+                       reference_mass, stiffness_chunks)
 from .errors import InputError
 from .lattice import HEX_CORNERS, CubeModel
 
@@ -212,9 +213,14 @@ class Assembler:
             return self._scatter(lambda s, e: flat[s:e])
         from .material import lame
 
-        E = self.model.youngs if youngs is None else _per_cube(youngs, "youngs", n)
-        nu = self.model.poisson if poisson is None else _per_cube(poisson, "poisson", n)
-        lam, mu = lame(E, nu)
+        h = self.model.h
+        if youngs is None and poisson is None:
+            # the model's partial-cube stiffness (finite-cell moments or fraction-scaled)
+            return self._scatter(cube_stiffness_chunks(self.model, self.element))
+        else:
+            E = self.model.youngs if youngs is None else _per_cube(youngs, "youngs", n)
+            nu = self.model.poisson if poisson is None else _per_cube(poisson, "poisson", n)
+            lam, mu = lame(E, nu)
         h = self.model.h
         return self._scatter(stiffness_chunks(self.element, lam, mu, h))
 
@@ -235,6 +241,9 @@ class Assembler:
         if lumped:
             nm = self.model.node_masses(mass)
             return sp.diags(np.repeat(nm, 3)[self.free_dofs]).tocsr()
+        if self.model.stiffness == "moments":       # mass distributed like the filled region
+            mom = self.model.moments
+            return self._scatter(lambda s, e: moment_mass(mom[s:e], mass[s:e]))
         mref = reference_mass().ravel()
         return self._scatter(lambda s, e: mass[s:e, None] * mref[None, :])
 

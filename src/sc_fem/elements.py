@@ -296,3 +296,146 @@ def stiffness_chunks(element: str, lam: np.ndarray, mu: np.ndarray, h: float) ->
 def stiffness_values(element: str, lam: np.ndarray, mu: np.ndarray, h: float) -> np.ndarray:
     """Flattened element matrices ``(n, 576)`` (row-major 24x24), N/m."""
     return stiffness_chunks(element, lam, mu, h)(0, len(lam))
+
+
+# ---------------------------------------------------------------------------------------- finite cell
+def _shape_gradients(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Trilinear shape functions (q, 8) and their gradients (q, 8, 3) on the unit cube at ``x`` (q, 3)."""
+    c = HEX_CORNERS[None, :, :]                                       # (1, 8, 3)
+    f = np.where(c == 1, x[:, None, :], 1.0 - x[:, None, :])          # (q, 8, 3) factor per axis
+    df = np.where(c == 1, 1.0, -1.0) * np.ones_like(f)
+    n = f.prod(axis=2)
+    grad = np.stack([df[..., 0] * f[..., 1] * f[..., 2], f[..., 0] * df[..., 1] * f[..., 2],
+                     f[..., 0] * f[..., 1] * df[..., 2]], axis=2)
+    return n, grad
+
+
+@lru_cache(maxsize=None)
+def _polynomial_parts(element: str) -> dict[str, np.ndarray]:
+    """Coefficients of the integrands in the 27 monomials of :data:`sc_fem.moments.EXPONENTS`.
+
+    Every integrand of the unit-cube element (``B^T D B`` split into its lambda and mu parts,
+    including the 9 incompatible modes of q1i, and ``N N^T``) has degree <= 2 in each reference
+    coordinate, so it is fitted exactly from its values at the 3 x 3 x 3 Gauss points.
+    Returns arrays (27, 33, 33) (``lambda``, ``mu``; the first 24 rows/columns compatible) and
+    (27, 24, 24) (``mass``), read-only.
+    """
+    from .moments import monomials
+
+    g, _ = np.polynomial.legendre.leggauss(3)
+    g = 0.5 * (g + 1.0)
+    x = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)   # (27, 3)
+    n, grad = _shape_gradients(x)
+    q = len(x)
+    gc = np.zeros((q, 24, 3, 3))                                        # d u_c / d x_k of DOF 3a + c
+    for c in range(3):          # three displacement components, not a loop over elements
+        gc[:, c::3, c, :] = grad
+    xi = 2.0 * x - 1.0
+    gi = np.zeros((q, 9, 3, 3))
+    for k in range(3):          # the 9 incompatible modes (1 - xi_k^2) e_c
+        for c in range(3):
+            gi[:, 3 * k + c, c, k] = -4.0 * xi[:, k]
+    gr = np.concatenate([gc, gi], axis=1) if element == "q1i" else gc   # (q, d, 3, 3)
+    tr = np.einsum("qicc->qi", gr)
+    k_lam = np.einsum("qi,qj->qij", tr, tr)
+    k_mu = np.einsum("qiab,qjab->qij", gr, gr) + np.einsum("qiab,qjba->qij", gr, gr)
+    mass = np.zeros((q, 24, 24))
+    nn = np.einsum("qa,qb->qab", n, n)
+    for c in range(3):
+        mass[:, c::3, c::3] = nn
+    vinv = np.linalg.inv(monomials(x))                                  # (27 monomials, 27 points)
+    out = {"lambda": np.einsum("kq,qij->kij", vinv, k_lam), "mu": np.einsum("kq,qij->kij", vinv, k_mu),
+           "mass": np.einsum("kq,qij->kij", vinv, mass)}
+    for a in out.values():
+        a.flags.writeable = False
+    return out
+
+
+MOMENT_ELEMENTS = frozenset({"q1", "q1i"})
+"""Elements whose matrices :func:`moment_stiffness` integrates over a cube's filled region."""
+
+FCM_ALPHA = 1e-4
+"""Finite-cell regularization: a partly filled cube's stiffness integrates over its filled region
+plus ``FCM_ALPHA`` times the whole cube, so a node that only slivers of material reach is held
+(its local mode stays far above the model's frequencies) without stiffening thin members: a plate
+a tenth of a cube thick has about 1000x this in bending."""
+
+
+def moment_stiffness(element: str, moments: np.ndarray, lam: np.ndarray, mu: np.ndarray, h: float) -> np.ndarray:
+    """Stiffness of partly filled cubes, integrated over the filled region only (finite cell method).
+
+    Parameters
+    ----------
+    element : {"q1", "q1i"}
+    moments : ndarray, shape (n, 27)
+        Moments of each cube's filled region (:mod:`sc_fem.moments`); the full cube gives the
+        ordinary element matrix.
+    lam, mu : ndarray, shape (n,)
+        Lame parameters of the material, Pa.
+    h : float
+        Cube edge, m.
+
+    Returns
+    -------
+    ndarray, shape (n, 576)
+        Flattened (row-major 24 x 24) matrices, N/m. For q1i the incompatible modes are
+        integrated over the filled region too and condensed per cube.
+    """
+    element = check_element(element)
+    if element not in MOMENT_ELEMENTS:
+        raise InputError(f"element {element!r} has no moment integration; use one of {sorted(MOMENT_ELEMENTS)}")
+    from .moments import FULL
+
+    p = _polynomial_parts(element)
+    d = p["lambda"].shape[1]
+    M = np.asarray(moments, dtype=np.float64)
+    M = M + FCM_ALPHA * (M[:, :1] < 1.0 - 1e-12) * FULL
+    k = (M @ p["lambda"].reshape(27, -1)) * (lam * h)[:, None] + (M @ p["mu"].reshape(27, -1)) * (mu * h)[:, None]
+    k = k.reshape(-1, d, d)
+    if element == "q1i":
+        kcc, kci, kii = k[:, :24, :24], k[:, :24, 24:], k[:, 24:, 24:]
+        # a sliver of material barely constrains the internal modes: keep their block invertible
+        reg = 1e-12 * np.einsum("nii->n", kii)[:, None, None] * np.eye(9)
+        k = kcc - kci @ np.linalg.solve(kii + reg, np.swapaxes(kci, 1, 2))
+    k = 0.5 * (k + np.swapaxes(k, 1, 2))
+    return k.reshape(-1, 576)
+
+
+def moment_mass(moments: np.ndarray, masses: np.ndarray) -> np.ndarray:
+    """Consistent mass matrices (n, 576) of cubes whose mass ``masses`` (n,) kg is distributed
+    like their filled region (``moments`` (n, 27); ``moments[:, 0]`` the filled fraction)."""
+    from .moments import FULL
+
+    M = np.asarray(moments, dtype=np.float64)
+    M = M + 1e-8 * M[:, :1] * FULL       # round-off in the moments of slivers must not make M indefinite
+    unit = M @ _polynomial_parts("q1")["mass"].reshape(27, -1)          # integral of N N^T over the fill
+    return unit * (np.asarray(masses, dtype=np.float64) / M[:, 0])[:, None]
+
+
+def cube_stiffness_chunks(model, element: str) -> Callable[[int, int], np.ndarray]:
+    """Element matrices of a model's cubes ``s:e`` (flattened, N/m), honouring its partial-cube
+    stiffness (:attr:`sc_fem.CubeModel.stiffness`): ``"moments"`` integrates the partly filled
+    cubes over their filled region (elements in :data:`MOMENT_ELEMENTS`; others fall back to
+    ``"fraction"``), full cubes use the reference matrix."""
+    element = check_element(element)
+    h = model.h
+    if model.stiffness != "moments" or element not in MOMENT_ELEMENTS:
+        return stiffness_chunks(element, *model.lame(), h)
+    lam, mu = model.lame(material=True)
+    ref = stiffness_chunks(element, lam, mu, h)
+    partial = model.fraction < 1.0 - 1e-12
+    mom = model.moments
+
+    def chunk(s: int, e: int) -> np.ndarray:
+        v = np.array(ref(s, e))
+        part = s + np.flatnonzero(partial[s:e])
+        if len(part):
+            v[part - s] = moment_stiffness(element, mom[part], lam[part], mu[part], h)
+        return v
+
+    return chunk
+
+
+def cube_stiffness(model, element: str) -> np.ndarray:
+    """All element matrices of a model, shape (n, 24, 24), N/m (see :func:`cube_stiffness_chunks`)."""
+    return cube_stiffness_chunks(model, element)(0, model.n_cubes).reshape(-1, 24, 24)

@@ -50,3 +50,8 @@ class ModeFileError(ScFemError, OSError):
 
 class RenderError(ScFemError, RuntimeError):
     """Off-screen rendering is not possible on this machine (says what to install)."""
+
+
+class ScFemWarning(UserWarning):
+    """A result is valid but probably not what was meant (most of a model dropped, an implausible
+    size for the material, an energy drift): the message says what and how to change it."""

@@ -28,6 +28,9 @@ HEX_CORNERS = np.array(
 )
 """Offsets (dx, dy, dz) of the 8 corners of a cube, in scikit-fem ``MeshHex`` order."""
 
+STIFFNESS_MODES = ("full", "fraction", "moments")
+"""How partly filled cubes are stiffened (:attr:`CubeModel.stiffness`)."""
+
 CONNECTIVITY = {"face": 1, "edge": 2, "vertex": 3}
 """Neighbourhoods for connected components: cubes sharing a face (6-connected, default),
 an edge (18-connected) or a corner (26-connected)."""
@@ -61,7 +64,8 @@ class CubeModel:
     mass : ndarray, shape (n,)
         Mass of each cube in kg (sum of its samples' masses).
     youngs : ndarray, shape (n,)
-        Young's modulus per cube, Pa (mass-weighted average of its samples').
+        Young's modulus of each cube's material, Pa (mass-weighted average of its samples').
+        Solvers use :meth:`lame`, which applies ``stiffness``.
     poisson : ndarray, shape (n,)
         Poisson's ratio per cube.
     density : ndarray, shape (n,)
@@ -74,6 +78,16 @@ class CubeModel:
         Node indices of each cube in :data:`HEX_CORNERS` (scikit-fem) order.
     component : ndarray of int, shape (n,)
         Connected-component label of each cube (0 = largest).
+    fraction : ndarray, shape (n,)
+        Filled volume fraction of each cube in (0, 1] (1 for full cubes).
+    stiffness : str
+        How partly filled cubes are stiffened: ``"full"`` (every cube at its material's
+        stiffness, the original Squashing Cubes), ``"fraction"`` (Lame parameters times
+        ``fraction``) or ``"moments"`` (the element matrices integrated over the filled region,
+        from ``moments``; solvers that take one pair of Lame parameters per cube use
+        ``"fraction"``).
+    moments : ndarray, shape (n, 27), or None
+        Moments of each cube's filled region (:mod:`sc_fem.moments`), when known.
     connectivity : str
         Neighbourhood used for components: ``"face"``, ``"edge"`` or ``"vertex"``.
     n_components : int
@@ -95,6 +109,9 @@ class CubeModel:
     node_index: np.ndarray
     hexes: np.ndarray
     component: np.ndarray
+    fraction: np.ndarray
+    stiffness: str = "full"
+    moments: np.ndarray | None = None
     connectivity: str = "face"
     info: dict = field(default_factory=dict)
 
@@ -102,7 +119,8 @@ class CubeModel:
     @classmethod
     def from_cells(cls, cells, *, origin, pitch: float, mass, youngs, poisson, density,
                    scale: float = 1.0, dims=None, connectivity: str = "face",
-                   info: dict | None = None) -> "CubeModel":
+                   info: dict | None = None, fraction=1.0, stiffness: str = "full",
+                   moments=None) -> "CubeModel":
         """Build a model from occupied lattice cells and per-cube properties.
 
         Parameters
@@ -115,6 +133,12 @@ class CubeModel:
             Cube edge, model units.
         mass, youngs, poisson, density : array_like, shape (n,) or scalar
             Per-cube mass (kg), E (Pa), nu, rho (kg/m^3).
+        fraction : array_like, shape (n,) or scalar
+            Filled volume fraction of each cube, in (0, 1] (default 1).
+        stiffness : {"full", "fraction", "moments"}
+            See the class attributes.
+        moments : array_like, shape (n, 27), optional
+            Moments of the filled region per cube (needed for ``stiffness="moments"``).
         scale : float
             Metres per model unit.
         dims : array_like of int, shape (3,), optional
@@ -146,6 +170,15 @@ class CubeModel:
         if np.any(mass <= 0):
             raise InputError(f"mass must be > 0 kg for every cube, got min {mass.min():g}")
         check_material(youngs, poisson, density, where="per-cube material")
+        fraction = per_cube(fraction, "fraction")
+        if np.any(fraction <= 0) or np.any(fraction > 1):
+            raise InputError(f"fraction must be in (0, 1] for every cube, got {fraction.min():g} .. {fraction.max():g}")
+        if stiffness not in STIFFNESS_MODES:
+            raise InputError(f"stiffness must be one of {STIFFNESS_MODES}, got {stiffness!r}")
+        if moments is not None:
+            moments = as_float_array(moments, "moments", (n, 27))
+        elif stiffness == "moments":
+            raise InputError("stiffness='moments' needs the moments of every cube")
 
         dims = cells.max(axis=0) + 1 if dims is None else np.asarray(dims, dtype=np.int64)
         if np.any(cells.max(axis=0) >= dims):
@@ -155,15 +188,17 @@ class CubeModel:
         order = np.argsort(lin, kind="stable")
         if np.any(np.diff(lin[order]) == 0):
             raise InputError("cells contain duplicate lattice indices")
-        cells, mass, youngs, poisson, density = (a[order] for a in (cells, mass, youngs, poisson, density))
+        cells, mass, youngs, poisson, density, fraction = (a[order] for a in (cells, mass, youngs, poisson, density,
+                                                                             fraction))
+        moments = None if moments is None else moments[order]
 
         node_index, hexes = _nodes_and_hexes(cells, dims)
         nodes = origin + pitch * node_index.astype(float)
         component = _components(cells, dims, connectivity)
         return cls(origin=origin, pitch=pitch, scale=scale, dims=np.asarray(dims, dtype=np.int64),
                    cells=cells, mass=mass, youngs=youngs, poisson=poisson, density=density,
-                   nodes=nodes, node_index=node_index, hexes=hexes, component=component,
-                   connectivity=connectivity, info=dict(info or {}))
+                   nodes=nodes, node_index=node_index, hexes=hexes, component=component, fraction=fraction,
+                   stiffness=stiffness, moments=moments, connectivity=connectivity, info=dict(info or {}))
 
     @classmethod
     def box(cls, shape, pitch: float, *, youngs: float = 200e9, poisson: float = 0.3,
@@ -227,11 +262,18 @@ class CubeModel:
         """Cube centres in model units, shape (n, 3)."""
         return self.origin + self.pitch * (self.cells + 0.5)
 
-    def lame(self) -> tuple[np.ndarray, np.ndarray]:
-        """Per-cube Lame parameters (lambda, mu) in Pa, each shape (n,)."""
+    def lame(self, *, material: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Per-cube Lame parameters (lambda, mu) in Pa, each shape (n,).
+
+        The effective values a one-pair-per-cube solver should use: the material's times
+        ``fraction`` unless ``stiffness == "full"``; ``material=True``: the material's own.
+        """
         from .material import lame
 
-        return lame(self.youngs, self.poisson)
+        lam, mu = lame(self.youngs, self.poisson)
+        if material or self.stiffness == "full":
+            return lam, mu
+        return lam * self.fraction, mu * self.fraction
 
     def node_masses(self, masses=None) -> np.ndarray:
         """Lumped node masses in kg, shape (m,): each cube gives 1/8 of its mass to each corner.
@@ -266,6 +308,8 @@ class CubeModel:
         return CubeModel.from_cells(self.cells[mask], origin=self.origin, pitch=self.pitch, scale=self.scale,
                                     dims=self.dims, mass=self.mass[mask], youngs=self.youngs[mask],
                                     poisson=self.poisson[mask], density=self.density[mask],
+                                    fraction=self.fraction[mask], stiffness=self.stiffness,
+                                    moments=None if self.moments is None else self.moments[mask],
                                     connectivity=self.connectivity, info=dict(self.info))
 
     def with_info(self, **kw) -> "CubeModel":

@@ -87,6 +87,8 @@ def save_modes(basis: ModalBasis, path) -> Path:
         arrays.update(lattice_cells=lat.cells, lattice_origin=lat.origin, lattice_pitch=np.float64(lat.pitch),
                       lattice_scale=np.float64(lat.scale), lattice_dims=lat.dims, lattice_mass=lat.mass,
                       lattice_youngs=lat.youngs, lattice_poisson=lat.poisson, lattice_density=lat.density,
+                      lattice_fraction=lat.fraction, lattice_stiffness=np.str_(lat.stiffness),
+                      **({} if lat.moments is None else {"lattice_moments": lat.moments}),
                       lattice_node_modes=np.asarray(basis.node_modes, dtype=np.float32))
     _check_arrays(arrays, path)        # never write a file we would refuse to read
     return save_npz_atomic(path, **arrays)
@@ -180,7 +182,10 @@ def load_modes(path) -> ModalBasis:
             lattice = CubeModel.from_cells(
                 data["lattice_cells"], origin=data["lattice_origin"], pitch=float(data["lattice_pitch"]),
                 scale=float(data["lattice_scale"]), dims=data["lattice_dims"], mass=data["lattice_mass"],
-                youngs=data["lattice_youngs"], poisson=data["lattice_poisson"], density=data["lattice_density"])
+                youngs=data["lattice_youngs"], poisson=data["lattice_poisson"], density=data["lattice_density"],
+                fraction=data["lattice_fraction"] if "lattice_fraction" in data else 1.0,
+                stiffness=str(data["lattice_stiffness"]) if "lattice_stiffness" in data else "full",
+                moments=data["lattice_moments"] if "lattice_moments" in data else None)
         except InputError as exc:
             raise ModeFileError(f"{path}: invalid lattice: {exc}") from None
         node_modes = data["lattice_node_modes"]

@@ -27,6 +27,8 @@ def save_model(model: CubeModel, path) -> Path:
             origin=model.origin, pitch=np.float64(model.pitch), scale=np.float64(model.scale),
             dims=model.dims, cells=model.cells, mass=model.mass, youngs=model.youngs,
             poisson=model.poisson, density=model.density, connectivity=np.str_(model.connectivity),
+            fraction=model.fraction, stiffness=np.str_(model.stiffness),
+            **({} if model.moments is None else {"moments": model.moments}),
             info_json=np.str_(json.dumps(model.info, default=str)))
     if ext == ".vtu":
         import meshio
@@ -35,6 +37,7 @@ def save_model(model: CubeModel, path) -> Path:
 
         m = meshio.Mesh(model.nodes, [("hexahedron", model.hexes[:, _VTK_HEX_ORDER])],
                         cell_data={"mass_kg": [model.mass], "youngs_Pa": [model.youngs],
+                                   "fraction": [model.fraction],
                                    "poisson": [model.poisson], "density_kg_m3": [model.density],
                                    "component": [model.component]})
         with atomic_path(path, suffix=".vtu") as tmp:
@@ -49,4 +52,7 @@ def load_model(path) -> CubeModel:
     return CubeModel.from_cells(d["cells"], origin=d["origin"], pitch=float(d["pitch"]), scale=float(d["scale"]),
                                 dims=d["dims"], mass=d["mass"], youngs=d["youngs"], poisson=d["poisson"],
                                 density=d["density"], connectivity=str(d["connectivity"]),
+                                fraction=d["fraction"] if "fraction" in d else 1.0,
+                                stiffness=str(d["stiffness"]) if "stiffness" in d else "full",
+                                moments=d["moments"] if "moments" in d else None,
                                 info=json.loads(str(d["info_json"])))

@@ -35,11 +35,15 @@ class Samples:
         1 for point-cloud samples.
     face : ndarray of int, shape (n,)
         Source face of each sample, -1 where there is none.
+    moments : ndarray, shape (n, 27), or None
+        Volume samples: each sample's share of its cube's moments (:mod:`sc_fem.moments`, in
+        units of the cube's volume), when known.
     """
 
     points: np.ndarray
     weight: np.ndarray
     face: np.ndarray
+    moments: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.points)

@@ -32,8 +32,14 @@ def add_grid_args(p: argparse.ArgumentParser, *, auto: bool = False,
     g.add_argument("--pitch", type=float, default=None, help="cube edge in model units")
     p.add_argument("--scale", type=float, default=1.0,
                    help="metres per model unit (a model in millimetres: 0.001); default 1")
-    p.add_argument("--fill", choices=("surface", "solid"), default="surface",
-                   help="surface shell (default) or flood-filled solid")
+    p.add_argument("--fill", choices=("auto", "solid", "surface"), default="auto",
+                   help="auto (default): solid where the surface encloses volume, a shell of "
+                        "--shell-thickness where it does not; solid: every part solid; surface: every part a shell")
+    p.add_argument("--shell-thickness", type=float, default=None,
+                   help="physical thickness of shell parts in model units (default 1%% of the longest extent)")
+    p.add_argument("--stiffness", choices=("fraction", "full"), default="fraction",
+                   help="fraction (default): a partly filled cube's stiffness is scaled by its filled volume; "
+                        "full: every cube at full stiffness (the original Squashing Cubes)")
     p.add_argument(*method_flags, dest="voxel_method", choices=("sample", "exact"), default="sample",
                    help="voxelization: point sampling (default) or exact triangle-cube overlap")
     p.add_argument("--keep", choices=("largest", "all"), default="largest",
@@ -50,6 +56,7 @@ def add_material_args(p: argparse.ArgumentParser) -> None:
 def voxelize_options(args) -> dict:
     """Keyword arguments of :func:`sc_fem.voxelize` from the grid/material options, except ``resolution``."""
     return dict(pitch=args.pitch, scale=args.scale, fill=args.fill, method=args.voxel_method, keep=args.keep,
+                shell_thickness=args.shell_thickness, stiffness=args.stiffness,
                 youngs=args.youngs, poisson=args.poisson, density=args.density, mass=args.mass)
 
 

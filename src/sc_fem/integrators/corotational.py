@@ -52,7 +52,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..elements import DEFAULT_ELEMENT, element_stiffness
+from ..elements import DEFAULT_ELEMENT, cube_stiffness
 from ..errors import InputError
 from ..lattice import HEX_CORNERS, CubeModel
 from .newmark import Newmark
@@ -138,7 +138,7 @@ class Corotational(Newmark):
         self.iterations = max(1, int(iterations))
         # per-cube element matrices, N/m, (n, 24, 24); needed by the base class's __init__
         # (initial acceleration), hence built before it
-        self._Ke = element_stiffness(kw.get("element", DEFAULT_ELEMENT), *model.lame(), model.h)
+        self._Ke = cube_stiffness(model, kw.get("element", DEFAULT_ELEMENT))
         self._X = model.nodes_m[model.hexes]                    # rest corners (n, 8, 3), m
         self._cache_u = None                                    # (u, K'(u)): last tangent
         self._cache_R = None                                    # (u, x_e, R): last rotations
