@@ -298,3 +298,16 @@ def test_bbox_cover_matches_a_loop_oracle():
                 for kk in range(lo[2], hi[2] + 1):
                     expect[i, j, kk] += 1
     np.testing.assert_array_equal(cover, expect)
+
+
+# ---------------------------------------------------------------- issue 11: no modes in the band
+def test_max_frequency_below_the_first_mode_is_a_clear_error():
+    from sc_fem.errors import InputError
+
+    with pytest.raises(InputError, match=r"first one is at \d"):
+        sc_fem.modal("builtin:chair", resolution=12, max_frequency=1.0, fix="z<min+0.01")
+    from sc_fem._cli.main import main
+
+    assert main(["precompute-modes", "builtin:chair", "-r", "12", "--fix", "default", "--max-frequency", "1",
+                 "-o", "/tmp/never-written.modes.npz"]) == 2
+    assert not Path("/tmp/never-written.modes.npz").exists()

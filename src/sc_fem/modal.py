@@ -314,6 +314,10 @@ def _solve_modes(model: CubeModel, fixed: np.ndarray, *, n_modes, max_frequency,
     sel &= within
     if not keep_rigid:
         sel &= ~rigid
+    if lam_max is not None and not np.any(sel & ~rigid):
+        first = np.sqrt(max(float(lam[~rigid][0]), 0.0)) / (2 * np.pi) if np.any(~rigid) else float("nan")
+        raise InputError(f"no elastic mode below max_frequency={max_frequency:g} Hz: the first one is at "
+                         f"{first:.4g} Hz; raise max_frequency or give n_modes")
     info = {"method": eig.method, "backend": eig.backend, "reason": eig.reason, "sigma": eig.sigma,
             "seconds": eig.seconds, "k_computed": int(len(lam)), "passes": passes, "setups": solver.n_setups,
             "n_rigid_expected": n_rigid_expected, "n_rigid_found": int(rigid.sum()), "lambda_scale": scale,

@@ -37,8 +37,9 @@ def add_grid_args(p: argparse.ArgumentParser, *, auto: bool = False,
                         "--shell-thickness where it does not; solid: every part solid; surface: every part a shell")
     p.add_argument("--shell-thickness", type=float, default=None,
                    help="physical thickness of shell parts in model units (default 1%% of the longest extent)")
-    p.add_argument("--stiffness", choices=("fraction", "full"), default="fraction",
-                   help="fraction (default): a partly filled cube's stiffness is scaled by its filled volume; "
+    p.add_argument("--stiffness", choices=("moments", "fraction", "full"), default="moments",
+                   help="moments (default): a partly filled cube's element matrices are integrated over its "
+                        "filled region; fraction: its stiffness is scaled by its filled volume; "
                         "full: every cube at full stiffness (the original Squashing Cubes)")
     p.add_argument(*method_flags, dest="voxel_method", choices=("sample", "exact"), default="sample",
                    help="voxelization: point sampling (default) or exact triangle-cube overlap")
