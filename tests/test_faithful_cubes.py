@@ -311,3 +311,22 @@ def test_max_frequency_below_the_first_mode_is_a_clear_error():
     assert main(["precompute-modes", "builtin:chair", "-r", "12", "--fix", "default", "--max-frequency", "1",
                  "-o", "/tmp/never-written.modes.npz"]) == 2
     assert not Path("/tmp/never-written.modes.npz").exists()
+
+
+# ---------------------------------------------------------------- issue 11: outputs checked first
+@pytest.mark.parametrize("argv, match", [
+    (["voxelize", "builtin:beam", "-r", "4", "-o", "/proc/x.png"], "not writable"),
+    (["modes-sheet", "MODES", "-o", "x.jpg"], "use .png"),
+    (["reconstruct", "ANIM", "-o", "x.csv"], "use .npz"),
+    (["voxelize", "builtin:beam", "-r", "4", "-o", "FILE/through/x.png"], "is a file"),
+])
+def test_unwritable_or_wrong_outputs_fail_before_any_work(tmp_path, capsys, argv, match):
+    from sc_fem._cli.main import main
+
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    argv = [a.replace("FILE", str(blocker)).replace("MODES", str(tmp_path / "none.npz"))
+            .replace("ANIM", str(tmp_path / "none.npz")) for a in argv]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert match in err and "Traceback" not in err and err.count("\n") == 1

@@ -47,3 +47,49 @@ def save_npz_atomic(path: str | os.PathLike, **arrays) -> Path:
         with open(tmp, "wb") as fh:
             np.savez_compressed(fh, **arrays)
     return path
+
+
+def check_output(path: str | os.PathLike, *, suffixes: tuple[str, ...] = (), folder: bool = False) -> Path:
+    """Check, before any work, that ``path`` can be written and names a format that is written.
+
+    Parameters
+    ----------
+    path : path-like
+        The output file (or folder).
+    suffixes : tuple of str
+        Accepted extensions (lower case, with the dot); empty accepts any.
+    folder : bool
+        A path without an extension is a folder to create (files are written inside it).
+
+    Raises
+    ------
+    OutputError
+        Unsupported extension, an existing non-directory in the way, or a folder where no file can
+        be created (checked by creating and removing a temporary file there).
+    """
+    from .errors import OutputError
+
+    path = Path(path)
+    ext = path.suffix.lower()
+    is_folder = folder and (ext == "" or path.is_dir())
+    if not is_folder and suffixes and ext not in suffixes:
+        extra = " or a folder" if folder else ""
+        raise OutputError(f"unsupported output {path.name!r}: use {', '.join(suffixes)}{extra} "
+                          f"({ext or 'no extension'} is not a format this command writes)")
+    if path.is_dir() and not is_folder:
+        raise OutputError(f"{path} is a folder; give a file name")
+    target = path if is_folder else path.parent
+    probe = target
+    while not probe.exists():                       # the nearest existing ancestor must be a writable folder
+        if probe.parent == probe:
+            break
+        probe = probe.parent
+    if not probe.is_dir():
+        raise OutputError(f"cannot write {path}: {probe} is a file, not a folder")
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=".sc_fem-probe.", dir=probe)
+        os.close(fd)
+        os.unlink(tmp)
+    except OSError as exc:
+        raise OutputError(f"cannot write {path}: {probe} is not writable ({exc.strerror or exc})") from None
+    return path

@@ -55,3 +55,8 @@ class RenderError(ScFemError, RuntimeError):
 class ScFemWarning(UserWarning):
     """A result is valid but probably not what was meant (most of a model dropped, an implausible
     size for the material, an energy drift): the message says what and how to change it."""
+
+
+class OutputError(ScFemError, OSError):
+    """An output path cannot be written (no permission, a path through a file, a virtual file
+    system) or names a format that is not written."""

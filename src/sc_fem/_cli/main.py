@@ -33,6 +33,29 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+OUTPUTS: dict[str, tuple[tuple[str, ...], bool]] = {
+    "voxelize": ((".png", ".npz", ".vtu"), False),
+    "precompute-modes": ((".npz",), True),
+    "play": ((".mp4", ".gif"), True),
+    "modes-sheet": ((".png",), False),
+    "simulate": ((".npz", ".xdmf", ".mp4", ".gif"), False),
+    "reconstruct": ((".npz",), False),
+    "demo": ((), True),
+}
+"""Per command: the output extensions it writes and whether a folder is accepted; checked (and the
+output location probed for writing) before any work starts."""
+
+
+def _check_outputs(args) -> None:
+    from .._atomic import check_output
+
+    suffixes, folder = OUTPUTS.get(args.command, ((), True))
+    if getattr(args, "output", None):
+        check_output(args.output, suffixes=suffixes, folder=folder)
+    if getattr(args, "report", None):
+        check_output(args.report, suffixes=(".md", ".txt"))
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the process exit code (0 ok, 2 bad input, 130 interrupted)."""
     parser = build_parser()
@@ -41,6 +64,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
+        _check_outputs(args)
         return int(args.func(args) or 0)
     except ScFemError as exc:
         print(f"sc-fem {args.command}: error: {exc}", file=sys.stderr)
