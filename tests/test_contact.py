@@ -89,14 +89,20 @@ def test_block_rests_on_ground_without_sinking():
 
 def test_fixed_nodes_of_the_integrator_bind_the_contact():
     """The integrator binds the contact to its own fixed nodes: the projection never moves them,
-    and vertices embedded only in fixed cubes are not pushed (their depth is reported)."""
+    and vertices embedded only in fixed cubes are not pushed (their depth is reported). The block
+    rests on the ground and is thrown down into it (a ground cutting it at t = 0 is refused)."""
     from sc_fem.boundary import fixed_nodes
+    from sc_fem.errors import InputError
 
     mesh, model = block(z0=0.0)
     fx = fixed_nodes(model, "x<min+0.06")                # the cubes at the -x end (model units)
-    c = Contact(model, mesh.vertices, [Ground(0.01)])   # 1 cm above the bottom face
+    with pytest.raises(InputError, match="already cuts the model"):
+        Newmark(model, 5e-4, fixed_nodes=fx, contact=Contact(model, mesh.vertices, [Ground(0.01)]))
+    c = Contact(model, mesh.vertices, [Ground(0.0)])    # touching the bottom face
     assert c.free.all()                                  # on its own it may move every node
-    integ = Newmark(model, 5e-4, fixed_nodes=fx, contact=c)
+    v0 = np.zeros((model.n_nodes, 3))
+    v0[:, 2] = -20.0                                     # m/s downwards: 1 cm into the ground in one step
+    integ = Newmark(model, 5e-4, fixed_nodes=fx, contact=c, v0=v0)
     assert integ.contact is not c and c.free.all()       # the user's object is left unchanged
     assert not integ.contact.free[fx].any() and integ.contact.free.sum() == model.n_nodes - len(fx)
     st = integ.step()
@@ -106,5 +112,5 @@ def test_fixed_nodes_of_the_integrator_bind_the_contact():
     pinned = ~mov & (mesh.vertices[:, 2] < 1e-9)         # bottom vertices in fully fixed cubes
     assert pinned.any() and (mov & (mesh.vertices[:, 2] < 1e-9)).any()
     assert d[mov].max() <= c.tol                         # every vertex that can move was pushed out
-    np.testing.assert_allclose(d[pinned], 0.01, atol=1e-12)   # the pinned ones stay 1 cm deep
+    np.testing.assert_allclose(d[pinned], 0.0, atol=1e-12)    # the pinned ones did not move
     assert integ.max_contact_depth == pytest.approx(d.max())

@@ -330,3 +330,20 @@ def test_unwritable_or_wrong_outputs_fail_before_any_work(tmp_path, capsys, argv
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert match in err and "Traceback" not in err and err.count("\n") == 1
+
+
+def test_an_obstacle_that_cuts_the_model_at_rest_is_a_set_up_error():
+    import numpy as np
+
+    from sc_fem.errors import InputError
+    from sc_fem.integrators import make_integrator
+    from sc_fem.integrators.contact import Contact, Ground, Sphere
+
+    mesh = sc_fem.load_mesh("builtin:beam")
+    model = sc_fem.voxelize(mesh, resolution=8)
+    rest = np.zeros((model.n_nodes, 3))
+    Contact(model, mesh.vertices, [Ground(z=float(mesh.vertices[:, 2].min()))]).check_initial(rest)   # touching
+    with pytest.raises(InputError, match=r"already cuts the model at t = 0: \d+ of \d+ vertices"):
+        make_integrator("newmark", model, 1e-4, contact=Contact(model, mesh.vertices, [Ground(z=0.05)]))
+    with pytest.raises(InputError, match="Sphere"):       # holds a corner
+        Contact(model, mesh.vertices, [Sphere(center=(0.0, 0.0, 0.0), radius=0.1)]).check_initial(rest)

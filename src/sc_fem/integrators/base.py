@@ -114,6 +114,8 @@ class TimeIntegrator:
         u = np.zeros((m, 3)) if u0 is None else as_float_array(u0, "u0", (m, 3)).copy()
         v = np.zeros((m, 3)) if v0 is None else as_float_array(v0, "v0", (m, 3)).copy()
         u[fn], v[fn] = 0.0, 0.0
+        if self.contact is not None:
+            self.contact.check_initial(u)
         self._u, self._v = self.asm.restrict(u), self.asm.restrict(v)
         self._mass_solver = None
         self._a = self._initial_acceleration()

@@ -162,6 +162,19 @@ class Contact:
         self._Wcsr = self.W.tocsr()
         self._set_free(np.ones(model.n_nodes, dtype=bool))
 
+    def check_initial(self, u: np.ndarray) -> None:
+        """Raise :class:`InputError` if an obstacle already cuts the model in the initial state ``u``
+        (m, 3) metres: a time integration would start by projecting the overlap away and blow up."""
+        p = self.positions(u)
+        for ob in self.obstacles:     # a few obstacles
+            d, _ = ob.depth(p)
+            inside = (d > self.tol) & self.movable
+            if inside.any():
+                raise InputError(
+                    f"{ob} already cuts the model at t = 0: {int(inside.sum())} of {len(d)} vertices lie up to "
+                    f"{float(d[inside].max()):.4g} model units inside it; move the obstacle or the model so "
+                    f"that they only touch")
+
     def _set_free(self, free: np.ndarray) -> None:
         self.free = free
         # vertices that can move at all (some free node in their cube)
