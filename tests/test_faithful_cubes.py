@@ -347,3 +347,20 @@ def test_an_obstacle_that_cuts_the_model_at_rest_is_a_set_up_error():
         make_integrator("newmark", model, 1e-4, contact=Contact(model, mesh.vertices, [Ground(z=0.05)]))
     with pytest.raises(InputError, match="Sphere"):       # holds a corner
         Contact(model, mesh.vertices, [Sphere(center=(0.0, 0.0, 0.0), radius=0.1)]).check_initial(rest)
+
+
+def test_millimetre_model_without_scale_warns_and_summaries_give_size_and_mass(tmp_path, capsys):
+    from sc_fem._cli.main import main
+
+    box = trimesh.creation.box(extents=(1500.0, 100.0, 100.0))       # a 1.5 m bar drawn in millimetres
+    path = tmp_path / "bar_mm.stl"
+    box.export(path)
+    with pytest.warns(ScFemWarning, match="1500 m long"):
+        sc_fem.voxelize(str(path), resolution=8)
+    assert main(["voxelize", str(path), "-r", "8", "-o", str(tmp_path / "bar.npz")]) == 0
+    cap = capsys.readouterr()
+    assert "warning: the model is 1500 m long" in cap.err and "scale=0.001" in cap.err
+    assert "size                  1500 x 187.5 x 187.5 m" in cap.out and " kg" in cap.out
+    assert main(["voxelize", str(path), "-r", "8", "--scale", "0.001", "-o", str(tmp_path / "bar.npz")]) == 0
+    cap = capsys.readouterr()
+    assert "warning" not in cap.err and "1.5 x 0.1875 x 0.1875 m" in cap.out

@@ -41,6 +41,7 @@ SNAP_CELLS = 0.01          # largest round-off (in cubes) absorbed by grid_for
 DEFAULT_SHELL_FRACTION = 0.01   # default shell thickness: 1 % of the longest extent
 DEFAULT_SUBSAMPLES = 4     # n: n^3 inside-test samples per boundary cube
 FILLS = ("auto", "solid", "surface")
+PLAUSIBLE_SIZE = (1e-3, 1e3)   # metres: outside, voxelize warns that the scale may be wrong
 STIFFNESS = ("moments", "fraction", "full")
 
 
@@ -397,6 +398,10 @@ def voxelize(mesh: Any, *, resolution: int | None = None, pitch: float | None = 
                                  youngs=avg["E"], poisson=avg["nu"], density=cube_rho, fraction=fraction,
                                  stiffness=stiffness, moments=moments,
                                  connectivity=connectivity, info=info)
+    size_m = longest * scale
+    if not PLAUSIBLE_SIZE[0] <= size_m <= PLAUSIBLE_SIZE[1]:
+        warnings.warn(f"the model is {size_m:.4g} m long (scale={scale:g} metres per model unit): is that "
+                      f"meant? A model in millimetres needs scale=0.001 (--scale 0.001)", ScFemWarning, stacklevel=2)
     n_comp = model.n_components
     info.update(components_found=n_comp, cubes_found=model.n_cubes)
     if keep == "largest" and n_comp > 1:

@@ -10,6 +10,8 @@ import os
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from .common import add_element_arg, add_fix_args, add_grid_args, add_material_args, add_mesh_arg, stage, voxelize_options
 
 
@@ -105,6 +107,8 @@ def precompute_summary(basis, timings: dict) -> str:
         ("source", f"{basis.source}  (sha256 {basis.source_sha256[:12]})"),
         ("cubes / DOFs", f"{basis.n_cubes:,} / {basis.n_dofs:,}  (resolution {basis.resolution}, "
                          f"pitch {basis.pitch:.4g}, element {basis.element})"),
+        ("size / mass", " x ".join(f"{e:.4g}" for e in np.ptp(basis.vertices, axis=0) * basis.scale)
+         + f" m, {basis.material.get('mass', float('nan')):.6g} kg"),
         ("fixed", f"{basis.fixed.get('n_nodes', 0)} nodes ({', '.join(basis.fixed.get('specs', [])) or 'free'})"),
         ("eigensolver", f"{e.get('method', '')} / {e.get('backend', '')}: {e.get('reason', '')}; "
                         f"{e.get('passes', 1)} solve(s) on {e.get('setups', 1)} factorization/hierarchy"),

@@ -79,6 +79,7 @@ def model_summary(model) -> str:
         ("samples", f"{info.get('n_samples', 0):,} ({info.get('sampler', '')}, {info.get('method', '')}, fill {info.get('fill', '')})"),
         ("components", f"{info.get('components_found', model.n_components)} found, "
                        f"{info.get('dropped_cubes', 0)} cubes dropped"),
+        ("size", " x ".join(f"{e:.4g}" for e in model.dims * model.h) + " m (bounding box of the cubes)"),
         ("mass", f"{model.total_mass:.6g} kg"),
         ("E", f"{model.youngs.min():.4g} .. {model.youngs.max():.4g} Pa ({info.get('material', '')})"),
     ]

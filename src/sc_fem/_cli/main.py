@@ -12,7 +12,7 @@ import pkgutil
 import sys
 
 from .. import __version__
-from ..errors import ScFemError
+from ..errors import ScFemError, ScFemWarning
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -63,9 +63,17 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    import warnings
+
+    def show(message, category, *rest, **kw):      # one line, no source excerpt
+        print(f"sc-fem {args.command}: warning: {message}", file=sys.stderr)
+
     try:
         _check_outputs(args)
-        return int(args.func(args) or 0)
+        with warnings.catch_warnings():
+            warnings.simplefilter("always", ScFemWarning)
+            warnings.showwarning = show
+            return int(args.func(args) or 0)
     except ScFemError as exc:
         print(f"sc-fem {args.command}: error: {exc}", file=sys.stderr)
         return 2
