@@ -364,3 +364,18 @@ def test_millimetre_model_without_scale_warns_and_summaries_give_size_and_mass(t
     assert main(["voxelize", str(path), "-r", "8", "--scale", "0.001", "-o", str(tmp_path / "bar.npz")]) == 0
     cap = capsys.readouterr()
     assert "warning" not in cap.err and "1.5 x 0.1875 x 0.1875 m" in cap.out
+
+
+def test_bspline_baseline_survives_bunched_curve_points():
+    """Vertex-animation curves bunch points up (coincident vertices): knot spans without data
+    made the baseline's normal equations singular (issue 11's LinAlgError)."""
+    from sc_fem.reconstruct.bspline import bspline_baseline
+
+    t = np.linspace(0, 1, 5)
+    u = np.r_[np.zeros(40), np.linspace(0, 1, 20)]
+    x = np.zeros((5, 2, 60, 3))
+    x[..., 0] = u
+    x[..., 2] = 0.1 * np.sin(3 * u) * t[:, None, None]
+    model = bspline_baseline(x, t, [0, 2, 4])
+    assert np.isfinite(model.control_points).all()
+    np.testing.assert_allclose(model.evaluate(t[[0, 2, 4]]), x[[0, 2, 4]], atol=1e-6)

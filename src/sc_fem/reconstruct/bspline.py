@@ -21,6 +21,8 @@ from .param import check_u, parametrize
 from .pde import _check_curves, _check_times, check_frame_indices
 
 DEGREE = 3
+PENALTY = 1e-6
+"""Weight of the second-difference penalty relative to the mean diagonal of ``B^T B``."""
 
 
 def clamped_knots(n_control: int, k: int = DEGREE) -> np.ndarray:
@@ -128,5 +130,13 @@ def bspline_baseline(curves, times, fit_frames, n_control: int = 50, u=None) -> 
         np.add.at(atb, (fi, ci, cols[..., a]), vals[..., a, None] * xf)
         for b_ in range(DEGREE + 1):
             np.add.at(ata, (fi, ci, cols[..., a], cols[..., b_]), vals[..., a] * vals[..., b_])
-    ctrl = np.linalg.solve(ata, atb)
+    # a knot span without data (points bunched up along the curve, as on a vertex animation's
+    # curves) leaves B^T B singular: a tiny second-difference penalty (P-spline) fills such spans
+    # smoothly and changes nothing measurable where the data determine the fit
+    d2 = np.diff(np.eye(n_control), 2, axis=0)
+    diag = np.einsum("fcii->fci", ata)
+    mean = np.maximum(diag.mean(axis=-1), 1e-300)
+    starved = diag.min(axis=-1) < 1e-6 * mean              # only systems with a basis function (nearly) without data
+    scale = np.where(starved, PENALTY * mean, 0.0)[..., None, None]
+    ctrl = np.linalg.solve(ata + scale * (d2.T @ d2), atb)
     return BSplineModel(control_points=ctrl, knots=knots, u=u, fit_times=t[idx])
