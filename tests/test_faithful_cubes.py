@@ -379,3 +379,21 @@ def test_bspline_baseline_survives_bunched_curve_points():
     model = bspline_baseline(x, t, [0, 2, 4])
     assert np.isfinite(model.control_points).all()
     np.testing.assert_allclose(model.evaluate(t[[0, 2, 4]]), x[[0, 2, 4]], atol=1e-6)
+
+
+def test_play_warns_about_aliasing_and_invisible_motion(tmp_path, capsys):
+    from sc_fem._cli.main import main
+    from sc_fem.player import playback_warnings
+
+    basis = sc_fem.modal("builtin:chair", resolution=12, n_modes=6, fix="z<min+0.01")
+    path = tmp_path / "chair.modes.npz"
+    sc_fem.save_modes(basis, path)
+    player = sc_fem.ModalPlayer(basis)
+    player.impulse(0, [0.0, 1e-6, 0.0])                      # a micro-newton-second tap: invisible
+    frames = player.frames(duration=0.2, fps=20)
+    w = playback_warnings(basis, frames, 20)
+    assert any("alias" in s for s in w) and any("--exaggerate" in s for s in w)
+    assert main(["play", str(path), "--impulse", "0", "0", "1e-6", "0", "--duration", "0.1", "--fps", "20",
+                 "-o", str(tmp_path / "p.gif"), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "warning:" in err and "above half the frame rate (10 Hz)" in err and "--exaggerate" in err

@@ -245,3 +245,43 @@ def modes_sheet(basis: ModalBasis, path, *, n_modes: int = 6, columns: int | Non
         return write_png(p, path)
     finally:
         p.close()
+
+
+def playback_warnings(basis, frames: np.ndarray, fps: float, exaggerate: float = 1.0) -> list[str]:
+    """What would make a playback misleading, as sentences (empty when nothing).
+
+    Parameters
+    ----------
+    basis : ModalBasis
+    frames : ndarray, shape (T, n, 3)
+        Vertex positions (model units) as they will be drawn.
+    fps : float
+        Frames per second of the playback.
+    exaggerate : float
+        The displacement factor already applied to ``frames``.
+
+    Notes
+    -----
+    Modes above ``fps / 2`` alias into a slow sway that is not there. Motion below
+    :data:`INVISIBLE_FRACTION` of the model's bounding-box diagonal is less than a pixel on a
+    1000-pixel picture; the sentence suggests an ``--exaggerate`` factor that makes it 5 %.
+    """
+    out = []
+    nyquist = 0.5 * float(fps)
+    high = np.flatnonzero(np.asarray(basis.frequencies) > nyquist)
+    if len(high):
+        fs = ", ".join(f"{basis.frequencies[i]:.3g}" for i in high[:6]) + (", ..." if len(high) > 6 else "")
+        out.append(f"{len(high)} mode(s) ({fs} Hz) lie above half the frame rate ({nyquist:g} Hz): they alias "
+                   f"into a slow sway that is not there; raise --fps or precompute with --max-frequency {nyquist:g}")
+    rest = np.asarray(basis.vertices)
+    diag = float(np.linalg.norm(np.ptp(rest, axis=0)))
+    moved = float(np.linalg.norm(np.asarray(frames) - rest[None], axis=2).max()) if len(frames) else 0.0
+    if moved < INVISIBLE_FRACTION * diag:
+        factor = 0.05 * diag / max(moved, 1e-300) * exaggerate
+        out.append(f"the motion is at most {moved:.3g} model units ({100 * moved / diag:.2g} % of the model's "
+                   f"size): it will not be visible; try --exaggerate {factor:.3g}")
+    return out
+
+
+INVISIBLE_FRACTION = 1e-3
+"""Largest displacement, as a fraction of the bounding-box diagonal, below which motion is invisible."""

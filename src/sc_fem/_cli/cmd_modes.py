@@ -215,6 +215,10 @@ def run_play(args) -> int:
     frames = player.frames(args.duration, args.fps)
     if args.exaggerate != 1.0:
         frames = b.vertices[None] + args.exaggerate * (frames - b.vertices[None])
+    from ..player import playback_warnings
+
+    for w in playback_warnings(b, frames, args.fps, args.exaggerate):
+        print(f"sc-fem play: warning: {w}", file=sys.stderr)
     title = f"{b.source}: {b.n_modes} modes, {b.frequencies[0]:.3g}..{b.frequencies[-1]:.3g} Hz"
     path = render_animation(np.asarray(frames), b.faces, args.output, fps=args.fps, title=title,
                             progress=not args.quiet)
