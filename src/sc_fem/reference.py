@@ -131,7 +131,7 @@ def closed_manifold(mesh: Any):
     return out, "; ".join(steps) or "none (watertight)"
 
 
-def tetrahedralize(mesh: Any, *, scale: float = 1.0, n_tets: int = 20000, max_faces: int = 2000) -> TetMesh:
+def tetrahedralize(mesh: Any, *, scale: float = 1.0, n_tets: int = 20000, max_faces: int = 6000) -> TetMesh:
     """Conforming tetrahedral mesh of a closed surface with about ``n_tets`` tetrahedra (TetGen,
     radius-edge ratio <= 2, dihedral angles >= 10 degrees). ``scale``: metres per model unit.
     A surface of more than ``max_faces`` triangles is decimated first (VTK's quadric decimation
@@ -175,7 +175,7 @@ def _free_free(K, M, n_modes: int, shift: float) -> np.ndarray:
 
 
 def solve_reference(mesh: Any, *, youngs: float, poisson: float, density: float, scale: float = 1.0,
-                    n_tets: int = 20000, n_modes: int = 10, max_faces: int = 2000,
+                    n_tets: int = 20000, n_modes: int = 10, max_faces: int = 6000,
                     clamp: Callable[[np.ndarray], np.ndarray] | None = None) -> ReferenceSolution:
     """Solve the shape with conforming P2 tetrahedra.
 
