@@ -397,3 +397,25 @@ def test_play_warns_about_aliasing_and_invisible_motion(tmp_path, capsys):
                  "-o", str(tmp_path / "p.gif"), "--quiet"]) == 0
     err = capsys.readouterr().err
     assert "warning:" in err and "above half the frame rate (10 Hz)" in err and "--exaggerate" in err
+
+
+def test_simulate_warns_when_energy_grows_with_nothing_feeding_it(tmp_path, capsys, monkeypatch):
+    import dataclasses
+
+    import sc_fem.integrators as integrators
+    from sc_fem._cli.main import main
+
+    real = integrators.record
+
+    def drifting(*a, **kw):          # the same run, its energy made to grow by 30 % of T + U
+        rec = real(*a, **kw)
+        grow = np.linspace(0.0, 0.3 * float(np.max(rec.mechanical)), len(rec.energy))
+        return dataclasses.replace(rec, energy=rec.energy + grow)
+
+    argv = ["simulate", "builtin:beam", "-r", "8", "--fix", "default", "--gravity", "--dt", "1e-3",
+            "--duration", "0.01", "-o", str(tmp_path / "a.npz"), "--quiet"]
+    assert main(argv) == 0
+    assert "warning" not in capsys.readouterr().err
+    monkeypatch.setattr(integrators, "record", drifting)
+    assert main(argv) == 0
+    assert "warning: the total energy grew by 30 %" in capsys.readouterr().err

@@ -17,6 +17,9 @@ import numpy as np
 from .common import (add_element_arg, add_fix_args, add_grid_args, add_material_args, add_mesh_arg,
                      model_summary, stage, voxelize_from_args)
 
+ENERGY_GAIN_WARN = 0.05
+"""Energy gained (fraction of the largest kinetic + elastic energy) past which simulate warns."""
+
 OUTPUTS = (".npz", ".xdmf", ".mp4", ".gif")
 
 
@@ -230,6 +233,11 @@ def run(args) -> int:
             "scale": model.scale, "cubes": model.n_cubes, **rec.info}
     with stage("write", timings, q):
         _write(out, mesh, rec, meta, args.magnify, args.fps, progress=not (q or args.no_progress))
+    if rec.energy_drift > ENERGY_GAIN_WARN and args.gust is None:
+        # only a gust does work after t = 0 (impulses act at t = 0, damping and contact take energy out)
+        print(f"sc-fem simulate: warning: the total energy grew by {100 * rec.energy_drift:.3g} % of the largest "
+              f"kinetic + elastic energy with nothing feeding it: the run is not converged"
+              + (" (use more --substeps)" if args.method == "xpbd" else " (reduce --dt)"), file=sys.stderr)
     if not q:
         print(model_summary(model))
         disp = np.linalg.norm(rec.points - rec.points[0], axis=2).max() if len(rec.points) else 0.0
