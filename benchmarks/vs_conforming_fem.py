@@ -80,8 +80,11 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="resolutions 16, 24, 32 and a coarser reference")
     ap.add_argument("--cases", nargs="*", default=None, help="subset of: spot bunny chair beam")
+    ap.add_argument("--tag", default="", help="suffix of the output names (runs of different cases side by side)")
+    ap.add_argument("--resolutions", type=int, nargs="*", default=None, help="override the resolutions")
+    ap.add_argument("--elements", nargs="*", default=list(ELEMENTS), help=f"subset of {ELEMENTS}")
     args = ap.parse_args(argv)
-    resolutions = (16, 24, 32) if args.quick else (16, 24, 32, 48, 64)
+    resolutions = args.resolutions or ((16, 24, 32) if args.quick else (16, 24, 32, 48, 64))
     tets = (1500, 4000) if args.quick else (3000, 8000)     # TetGen makes about 2.5x as many
     rows, series, rates = [], {}, []
     for name, path, mat, up in cases():
@@ -100,11 +103,13 @@ def main(argv=None) -> int:
                   f"f = {np.round(ref.frequencies[:4], 3)} Hz; surface: {ref.repair}", file=sys.stderr, flush=True)
         coarse, ref = refs
         conv = float(np.max(np.abs(coarse.frequencies - ref.frequencies) / ref.frequencies))
+        print(f"[{name}] reference: mass {ref.mass:.6g} kg, max |u| {ref.max_displacement:.4g} m, "
+              f"change coarse -> fine {100 * conv:.2f} %", file=sys.stderr, flush=True)
         rows.append([name, "P2 ref (coarse)", "-", coarse.n_tets, f"{coarse.mass:.5g}", "-", "-",
                      f"{coarse.max_displacement:.4g}", f"{coarse.seconds:.1f}"])
         rows.append([name, "P2 ref", "-", ref.n_tets, f"{ref.mass:.5g}",
                      f"{100 * conv:.2f} (vs coarse)", "", f"{ref.max_displacement:.4g}", f"{ref.seconds:.1f}"])
-        for element in ELEMENTS:
+        for element in args.elements:
             errs = []
             for r in resolutions:
                 res = run_sc_fem(path, mat, up, r, element)
@@ -114,8 +119,10 @@ def main(argv=None) -> int:
                              f"{100 * fe.mean():.2f}", f"{100 * fe.max():.2f}",
                              f"{100 * (res['umax'] / ref.max_displacement - 1):+.1f} %",
                              f"{res['seconds']:.2f} (+{res['static_seconds']:.2f})"])
-                print(f"[{name}] {element} r={r}: mean {100 * fe.mean():.2f} %, max {100 * fe.max():.2f} %, "
-                      f"{res['seconds']:.1f} s", file=sys.stderr, flush=True)
+                print(f"[{name}] {element} r={r}: {res['cubes']} cubes, mass {100 * (res['mass'] / ref.mass - 1):+.2f} %, "
+                      f"f mean {100 * fe.mean():.2f} %, max {100 * fe.max():.2f} %, "
+                      f"|u| {100 * (res['umax'] / ref.max_displacement - 1):+.1f} %, {res['seconds']:.1f} s",
+                      file=sys.stderr, flush=True)
             series[name, element] = errs
             e = np.array(errs)
             slope = float(np.polyfit(np.log(1.0 / e[:, 0]), np.log(np.maximum(e[:, 1], 1e-12)), 1)[0])
@@ -128,7 +135,8 @@ def main(argv=None) -> int:
     print()
     text2 = print_table(["case", "element", "rate (mean f err ~ h^p)", "res reaching 5 %",
                          "speed-up vs reference there"], rates)
-    with open(out_path("vs_conforming_fem.md"), "w") as fh:
+    tag = f"_{args.tag}" if args.tag else ""
+    with open(out_path(f"vs_conforming_fem{tag}.md"), "w") as fh:
         fh.write(text + "\n\n" + text2 + "\n")
 
     import matplotlib.pyplot as plt
@@ -136,7 +144,7 @@ def main(argv=None) -> int:
     names = sorted({k[0] for k in series})
     fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 3.8), squeeze=False)
     for ax, name in zip(axes[0], names):
-        for element in ELEMENTS:
+        for element in args.elements:
             e = np.array(series[name, element])
             ax.loglog(e[:, 3], 100 * e[:, 1], "o-", label=f"sc_fem {element}")
             for r, _, _, t in series[name, element]:
@@ -150,7 +158,7 @@ def main(argv=None) -> int:
         ax.set_ylabel("mean error of 10 free-free frequencies, %")
         ax.grid(True, which="both", alpha=0.3)
     axes[0][0].legend(fontsize=7)
-    save_figure(fig, "vs_conforming_fem.png")
+    save_figure(fig, f"vs_conforming_fem{tag}.png")
     return 0
 
 
