@@ -23,10 +23,10 @@ import numpy as np
 import scipy.sparse.linalg as sla
 
 from _common import best_time, print_table, save_figure
-from sc_fem.assemble import Assembler, assemble
-from sc_fem.boundary import fixed_dofs, fixed_nodes
-from sc_fem.lattice import CubeModel
-from sc_fem.linsolve import factorize
+from sc_fem.fem.assemble import Assembler, assemble
+from sc_fem.fem.boundary import fixed_dofs, fixed_nodes
+from sc_fem.lattice.cubes import CubeModel
+from sc_fem.fem.linsolve import factorize
 
 F1_REF, TIP_REF, LOAD = 81.26, 2.002e-4, 1000.0
 VARIANTS = [("q1", "skfem"), ("q1", "fast"), ("q1sri", "fast"), ("q1i", "fast")]
@@ -83,7 +83,7 @@ def main(argv=None) -> int:
     ts = [1, 2, 4, 8, 16] if args.full else [1, 2, 4, 8]
     ts_asm = [1, 2, 4, 8] if args.quick else [1, 2, 4, 8, 16]
     # warm up the cached unit-cube reference matrices so they are not timed
-    from sc_fem.elements import q1i_unit_stiffness, reference_mass, reference_stiffness
+    from sc_fem.fem.elements import q1i_unit_stiffness, reference_mass, reference_stiffness
 
     reference_stiffness("q1"), reference_stiffness("q1sri"), reference_mass(), q1i_unit_stiffness(0.5)
 

@@ -8,7 +8,7 @@ Run:  .venv/bin/python benchmarks/modal.py [--quick]
    aggregation. Time (setup + solve) and peak memory.
 2. Built-in chair (feet fixed) and bridge at several resolutions: time and peak memory per stage
    (voxelize, assemble, eigensolve, bake) with the automatic solver choice.
-3. Playback frames per second of :class:`sc_fem.player.ModalPlayer` for 100k vertices and 32 modes.
+3. Playback frames per second of :class:`sc_fem.modes.player.ModalPlayer` for 100k vertices and 32 modes.
 
 Peak memory is the peak resident set size (VmRSS from /proc/self/status, sampled every 5 ms by a
 thread) above the value at the start of the stage, so C allocations (CHOLMOD, SuperLU, PARDISO,
@@ -84,7 +84,7 @@ def _pardiso_eigsh(K, M, k, sigma):
 def solvers_available() -> list[str]:
     import importlib.util
 
-    from sc_fem.linsolve import available_backends
+    from sc_fem.fem.linsolve import available_backends
 
     names = [f"si-{b}" for b in reversed(available_backends())]
     if importlib.util.find_spec("pypardiso") is not None:
@@ -94,7 +94,7 @@ def solvers_available() -> list[str]:
 
 
 def run_solver(name, K, M, k, near_null):
-    from sc_fem.eigen import SHIFT_FRACTION, lambda_scale, solve_eigen
+    from sc_fem.fem.eigen import SHIFT_FRACTION, lambda_scale, solve_eigen
 
     if name == "si-pardiso":
         sigma = -SHIFT_FRACTION * lambda_scale(K, M)
@@ -105,10 +105,10 @@ def run_solver(name, K, M, k, near_null):
 
 
 def bench_cantilevers(sizes, k, limits):
-    from sc_fem.assemble import Assembler
-    from sc_fem.boundary import fixed_dofs, fixed_nodes
-    from sc_fem.eigen import rigid_body_modes
-    from sc_fem.lattice import CubeModel
+    from sc_fem.fem.assemble import Assembler
+    from sc_fem.fem.boundary import fixed_dofs, fixed_nodes
+    from sc_fem.fem.eigen import rigid_body_modes
+    from sc_fem.lattice.cubes import CubeModel
 
     rows, results = [], {}
     names = solvers_available()
@@ -134,9 +134,9 @@ def bench_cantilevers(sizes, k, limits):
 
 
 def bench_models(cases, k):
-    from sc_fem.modal import modal
-    from sc_fem.mesh import load_mesh
-    from sc_fem.voxelize import voxelize
+    from sc_fem.modes.modal import modal
+    from sc_fem.geometry.mesh import load_mesh
+    from sc_fem.lattice.voxelize import voxelize
 
     rows = []
     for name, fix, res in cases:                                # loop over models and resolutions
@@ -154,8 +154,8 @@ def bench_models(cases, k):
 
 
 def bench_playback(n_vertices=100_000, k=32, seconds=2.0):
-    from sc_fem.modal import ModalBasis
-    from sc_fem.player import ModalPlayer
+    from sc_fem.modes.modal import ModalBasis
+    from sc_fem.modes.player import ModalPlayer
 
     rng = np.random.default_rng(0)
     b = ModalBasis(frequencies=np.sort(rng.uniform(1, 100, k)), modes=rng.standard_normal((k, n_vertices, 3)).astype(np.float32),

@@ -1,6 +1,6 @@
 """PDE-based dynamic reconstruction of the XPBD cube-rope (Fang et al. 2024, Table 1 / Figure 6).
 
-Simulates the built-in rope with :func:`sc_fem.rope_scene.rope_scene`, fits the PDE model (Eq. 17) and
+Simulates the built-in rope with :func:`sc_fem.dynamics.rope_scene.rope_scene`, fits the PDE model (Eq. 17) and
 the static B-spline baseline on frames 0, 2, ..., 10, and prints
 
 * our Table 1 (E_A, E_M per frame on curve 1 as in the paper, and over all 24 curves) beside the
@@ -43,9 +43,9 @@ PAPER_SUMMARY = {"pde_mean_EA": 0.006986, "pde_max_EM": 0.019478, "bs_mean_EA": 
 
 def get_rope_scene():
     try:
-        from sc_fem.rope_scene import rope_scene
+        from sc_fem.dynamics.rope_scene import rope_scene
     except ImportError as exc:
-        sys.exit("benchmarks/reconstruction.py: sc_fem.rope_scene.rope_scene is not available yet "
+        sys.exit("benchmarks/reconstruction.py: sc_fem.dynamics.rope_scene.rope_scene is not available yet "
                  f"({exc}); this benchmark needs the XPBD rope simulation and does not fake data.")
     return rope_scene
 

@@ -22,11 +22,11 @@ import numpy as np
 from _common import print_table, save_figure
 from scipy.linalg import eigh
 
-from sc_fem.boundary import fixed_nodes
+from sc_fem.fem.boundary import fixed_nodes
 from sc_fem.errors import InstabilityError
-from sc_fem.integrators import make_integrator, record
-from sc_fem.integrators.loads import Gravity, LoadSet
-from sc_fem.lattice import CubeModel
+from sc_fem.dynamics import make_integrator, record
+from sc_fem.dynamics.loads import Gravity, LoadSet
+from sc_fem.lattice.cubes import CubeModel
 
 METHODS = {
     "central": ("central", {}),
@@ -42,8 +42,8 @@ def models(quick: bool):
     cant = CubeModel.box((10, 2, 2), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
     out = [("cantilever", cant, fixed_nodes(cant, "x<min+0"))]
     if not quick:
-        from sc_fem.mesh import load_mesh
-        from sc_fem.voxelize import voxelize
+        from sc_fem.geometry.mesh import load_mesh
+        from sc_fem.lattice.voxelize import voxelize
 
         br = voxelize(load_mesh("builtin:bridge"), resolution=12)
         out.append(("bridge", br, fixed_nodes(br, "z<min+0.05")))
@@ -68,7 +68,7 @@ class Reference:
 
 
 def run_xpbd(model, fixed, dt, n):
-    from sc_fem.xpbd import XPBDSolver
+    from sc_fem.dynamics.xpbd import XPBDSolver
 
     s = XPBDSolver(model, dt, substeps=1, iterations=10, fixed=fixed, gravity=(0, 0, -9.81))
     us, es, t0 = [np.zeros((model.n_nodes, 3))], [0.0], time.perf_counter()

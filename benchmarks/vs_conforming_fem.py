@@ -24,7 +24,7 @@ import numpy as np
 from _common import SHARED_MESHES, out_path, print_table, save_figure
 
 import sc_fem
-from sc_fem.reference import solve_reference
+from sc_fem.fem.reference import solve_reference
 
 ELEMENTS = ("q1", "q1sri", "q1i")
 AXES = "xyz"

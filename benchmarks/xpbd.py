@@ -12,7 +12,7 @@ compared with linear FEM (``solve_static``, default element; first period from `
 same lattice's K, M, shift-invert with a small negative sigma), as ratios, with ms/frame at 60 fps,
 side by side with the peers' figures measured while planning (not re-run here).  Then a large
 substep sweep (0.1-16 ms) on a coarser bar: energy growth and blow-up per constraint family
-(``sc_fem.xpbd.stability_sweep``).  Writes benchmarks/out/xpbd.png.
+(``sc_fem.dynamics.xpbd.stability_sweep``).  Writes benchmarks/out/xpbd.png.
 
 Usage: python benchmarks/xpbd.py [--quick]     (default ~3-4 min, --quick < 1 min on 2 cores)
 """
@@ -30,8 +30,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import print_table, save_figure  # noqa: E402
 
 from sc_fem.errors import InstabilityError  # noqa: E402
-from sc_fem.lattice import CubeModel  # noqa: E402
-from sc_fem.xpbd import XPBDSolver, stability_sweep  # noqa: E402
+from sc_fem.lattice.cubes import CubeModel  # noqa: E402
+from sc_fem.dynamics.xpbd import XPBDSolver, stability_sweep  # noqa: E402
 
 # peers, measured while planning on the same bar (not re-run here): (name, sag / linear FEM, ms/frame)
 PEER_TAG = " (measured while planning)"
@@ -47,9 +47,9 @@ def linear_fem(m: CubeModel):
     """Static tip sag (m, mean over the tip face), static displacements (m, 3), first period (s)."""
     import scipy.sparse.linalg as sla
 
-    from sc_fem.assemble import assemble
-    from sc_fem.boundary import fixed_dofs
-    from sc_fem.static import solve_static
+    from sc_fem.fem.assemble import assemble
+    from sc_fem.fem.boundary import fixed_dofs
+    from sc_fem.fem.static import solve_static
 
     tip = m.node_index[:, 0] == m.dims[0]
     u = solve_static(m, fix="x<0.01", gravity=(0, 0, -9.81)).displacements

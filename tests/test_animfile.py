@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sc_fem.animfile import load_animation, save_animation
+from sc_fem.io.animation import load_animation, save_animation
 from sc_fem.errors import InputError, ModeFileError
 
 

@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sc_fem.assemble import Assembler, assemble
-from sc_fem.boundary import fixed_dofs
-from sc_fem.elements import element_stiffness, reference_mass
+from sc_fem.fem.assemble import Assembler, assemble
+from sc_fem.fem.boundary import fixed_dofs
+from sc_fem.fem.elements import element_stiffness, reference_mass
 from sc_fem.errors import InputError
-from sc_fem.lattice import CubeModel
-from sc_fem.linsolve import factorize
+from sc_fem.lattice.cubes import CubeModel
+from sc_fem.fem.linsolve import factorize
 
 
 def random_model(shape, seed, fill=0.7, pitch=0.05, scale=2.0):

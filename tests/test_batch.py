@@ -6,9 +6,9 @@ import csv
 
 import pytest
 
-from sc_fem.batch import expand_inputs, output_name, run_batch
+from sc_fem.modes.batch import expand_inputs, output_name, run_batch
 from sc_fem.errors import InputError
-from sc_fem.modefile import load_modes
+from sc_fem.io.modes import load_modes
 
 OPTS = {"resolution": 10, "n_modes": 3, "fix": ["default"]}
 

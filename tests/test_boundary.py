@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sc_fem.boundary import FixSpec, fixed_dofs, fixed_nodes, parse_fix, read_vertex_file
+from sc_fem.fem.boundary import FixSpec, fixed_dofs, fixed_nodes, parse_fix, read_vertex_file
 from sc_fem.errors import BoundaryConditionError
-from sc_fem.lattice import CubeModel
+from sc_fem.lattice.cubes import CubeModel
 
 
 @pytest.fixture
@@ -75,7 +75,7 @@ def test_vertices_fix_the_nodes_of_their_cubes(model):
     with pytest.raises(BoundaryConditionError, match="vertex indices"):
         fixed_nodes(model, vertices=[3], mesh_vertices=verts)
     # a precomputed embedding of all vertices gives the same nodes (and the same range check)
-    from sc_fem.embed import embedding
+    from sc_fem.lattice.embed import embedding
 
     emb = embedding(model, verts)
     assert np.array_equal(fixed_nodes(model, vertices=[0, 1], mesh_embedding=emb), nodes)

@@ -9,11 +9,11 @@ import pytest
 
 from sc_fem._cli.main import main
 from sc_fem.errors import RenderError
-from sc_fem.modefile import load_modes
+from sc_fem.io.modes import load_modes
 
 
 def _render_ok():
-    from sc_fem.render import ensure_rendering
+    from sc_fem.io.render import ensure_rendering
 
     try:
         ensure_rendering()

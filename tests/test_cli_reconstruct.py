@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sc_fem._cli.main import main
-from sc_fem.animfile import save_animation
+from sc_fem.io.animation import save_animation
 
 
 def _tube_animation(path, n_frames=11, extra=None):
@@ -60,7 +60,7 @@ def test_cli_reconstruct_uses_stored_curves(tmp_path):
     assert main(["reconstruct", str(anim), "--fit-frames", "0,5,10", "-o", str(out), "--n-control", "10",
                  "--parametrization", "arclength", "--r", "1.5"]) == 0
     from sc_fem import reconstruct as rec
-    from sc_fem.animfile import load_animation
+    from sc_fem.io.animation import load_animation
 
     a = load_animation(anim)
     fit = [0, 5, 10]

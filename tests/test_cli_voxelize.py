@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from sc_fem._cli.main import build_parser, main
-from sc_fem.modelfile import load_model
+from sc_fem.io.model import load_model
 
 
 def test_help_lists_every_option(capsys):

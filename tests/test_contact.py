@@ -5,14 +5,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
+from sc_fem import Scene
 import trimesh
 
 from sc_fem.errors import InputError
-from sc_fem.integrators import record
-from sc_fem.integrators.contact import TOL_FRACTION, Box, Contact, Ground, Sphere, obstacles_from
-from sc_fem.integrators.loads import Gravity, LoadSet
-from sc_fem.integrators.newmark import Newmark
-from sc_fem.voxelize import voxelize
+from sc_fem.dynamics import record
+from sc_fem.dynamics.contact import TOL_FRACTION, Box, Contact, Ground, Sphere, obstacles_from
+from sc_fem.dynamics.loads import Gravity, LoadSet
+from sc_fem.dynamics.newmark import Newmark
+from sc_fem.lattice.voxelize import voxelize
 
 
 def block(z0=0.05):
@@ -61,7 +63,7 @@ def test_dropped_block_never_ends_a_step_below_the_tolerance(obstacle):
     # dt below the explicit limit of the block (~0.9 ms): with larger steps the position
     # projection can feed energy into the stiff modes of an implicit scheme (see contact.py)
     integ = Newmark(model, 5e-4, loads=ld, contact=c, rayleigh=(0.0, 1e-3))
-    rec = record(integ, 400, W=c.W.tocsr(), rest_points=mesh.vertices, every=2)
+    rec = record(integ, 400, scene=Scene.from_model(model, mesh), every=2)
     d = np.array([obstacle.depth(p)[0].max() for p in rec.points])    # deepest vertex per frame
     # it started 5 cm above the obstacle (top at z = 0), fell and touched it after the free-fall
     # time sqrt(2 h / g) = 0.101 s (frames every 1 ms), then bounced off (elastic rebound)
@@ -82,7 +84,7 @@ def test_block_rests_on_ground_without_sinking():
     mesh, model = block(z0=0.0)
     c = Contact(model, mesh.vertices, [Ground(0.0)])
     integ = Newmark(model, 5e-4, loads=LoadSet(model, [Gravity()]), contact=c, rayleigh=(0.0, 1e-3))
-    rec = record(integ, 200, W=c.W.tocsr(), rest_points=mesh.vertices)
+    rec = record(integ, 200, scene=Scene.from_model(model, mesh))
     assert rec.points[:, :, 2].min() >= -c.tol
     assert rec.points[-1, :, 2].min() < 1e-3         # still touching the ground (not bounced off)
 
@@ -91,7 +93,7 @@ def test_fixed_nodes_of_the_integrator_bind_the_contact():
     """The integrator binds the contact to its own fixed nodes: the projection never moves them,
     and vertices embedded only in fixed cubes are not pushed (their depth is reported). The block
     rests on the ground and is thrown down into it (a ground cutting it at t = 0 is refused)."""
-    from sc_fem.boundary import fixed_nodes
+    from sc_fem.fem.boundary import fixed_nodes
     from sc_fem.errors import InputError
 
     mesh, model = block(z0=0.0)

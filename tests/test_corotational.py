@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 from scipy.linalg import polar
 
-from sc_fem.elements import element_stiffness
-from sc_fem.integrators import record
-from sc_fem.integrators import corotational as corot_mod
-from sc_fem.integrators.corotational import Corotational, cube_rotations, polar_rotation
-from sc_fem.integrators.loads import Gravity, LoadSet
-from sc_fem.integrators.newmark import Newmark
-from sc_fem.lattice import HEX_CORNERS, CubeModel
+from sc_fem.fem.elements import element_stiffness
+from sc_fem.dynamics import record
+from sc_fem.dynamics import corotational as corot_mod
+from sc_fem.dynamics.corotational import Corotational, cube_rotations, polar_rotation
+from sc_fem.dynamics.loads import Gravity, LoadSet
+from sc_fem.dynamics.newmark import Newmark
+from sc_fem.lattice.cubes import HEX_CORNERS, CubeModel
 
 
 def bar():

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sc_fem import elements as E
+from sc_fem.fem import elements as E
 from sc_fem.errors import InputError
-from sc_fem.lattice import HEX_CORNERS
+from sc_fem.lattice.cubes import HEX_CORNERS
 
 GAUSS = np.array([-1.0, 1.0]) / np.sqrt(3.0)
 SIGN = 2 * HEX_CORNERS - 1          # corner a at xi = SIGN[a] on [-1, 1]^3

@@ -9,9 +9,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import sc_fem
-from sc_fem.embed import embedding
+from sc_fem.lattice.embed import embedding
 from sc_fem.errors import ScFemError
-from sc_fem.lattice import HEX_CORNERS
+from sc_fem.lattice.cubes import HEX_CORNERS
 
 
 def _W_oracle(model, points):

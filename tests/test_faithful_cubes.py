@@ -14,10 +14,10 @@ from hypothesis import strategies as st
 
 import sc_fem
 from sc_fem.errors import ScFemWarning
-from sc_fem.gridcut import cut_by_grid
-from sc_fem.inside import mesh_parts
-from sc_fem.moments import column_moments
-from sc_fem.voxelize import grid_for
+from sc_fem.lattice.gridcut import cut_by_grid
+from sc_fem.geometry.inside import mesh_parts
+from sc_fem.lattice.moments import column_moments
+from sc_fem.lattice.voxelize import grid_for
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "meshes"
 
@@ -176,7 +176,7 @@ def test_every_vertex_cube_is_in_the_model(path, res):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ScFemWarning)
         model = sc_fem.voxelize(mesh, resolution=res, keep="all")
-    from sc_fem.embed import embedding
+    from sc_fem.lattice.embed import embedding
 
     emb = embedding(model, mesh.vertices)
     assert emb.n_detached == 0
@@ -200,9 +200,9 @@ def test_point_cloud_gets_a_sensible_grid_and_warns_when_dropping():
 
 # ---------------------------------------------------------------- 6. finite-cell moments
 def test_moment_matrices_of_a_full_cube_are_the_element_matrices():
-    from sc_fem.elements import element_stiffness, moment_mass, moment_stiffness, reference_mass
-    from sc_fem.material import lame
-    from sc_fem.moments import FULL
+    from sc_fem.fem.elements import element_stiffness, moment_mass, moment_stiffness, reference_mass
+    from sc_fem.fem.material import lame
+    from sc_fem.lattice.moments import FULL
 
     lam, mu = lame(np.array([2e9, 1e6]), np.array([0.3, 0.45]))
     for el in ("q1", "q1i"):
@@ -219,9 +219,9 @@ def test_moment_stiffness_equals_scikit_fem_on_the_filled_sub_box():
     from skfem import Basis, ElementHex1, ElementVector, MeshHex, asm
     from skfem.models.elasticity import linear_elasticity
 
-    from sc_fem.elements import moment_stiffness
-    from sc_fem.lattice import HEX_CORNERS
-    from sc_fem.moments import box_moments
+    from sc_fem.fem.elements import moment_stiffness
+    from sc_fem.lattice.cubes import HEX_CORNERS
+    from sc_fem.lattice.moments import box_moments
 
     g, w = np.polynomial.legendre.leggauss(4)
     z = 0.3 * 0.5 * (g + 1)
@@ -235,9 +235,9 @@ def test_moment_stiffness_equals_scikit_fem_on_the_filled_sub_box():
     # moments of the sub-box [0,1] x [0,1] x [0,0.3] as the sum of sub-box pieces along z
     mom = box_moments(np.array([[0.0, 0.0, 0.0]]), 1.0)
     mom_z = mom.copy()
-    from sc_fem.moments import EXPONENTS
+    from sc_fem.lattice.moments import EXPONENTS
     mom_z[0] = mom[0] * 0.3 ** (EXPONENTS[:, 2] + 1)       # integral of zeta^c over [0, 0.3]
-    from sc_fem import elements
+    from sc_fem.fem import elements
     ours = moment_stiffness("q1", mom_z, np.array([1.3]), np.array([0.7]), 1.0)[0].reshape(24, 24)
     ours -= elements.FCM_ALPHA * elements.element_stiffness("q1", [1.3], [0.7], 1.0)[0]   # the regularization
     np.testing.assert_allclose(ours, K, atol=1e-12 * np.abs(K).max())
@@ -278,7 +278,7 @@ def test_auto_resolution_converges_on_the_chair_and_settles_on_the_bridge():
 
 
 def test_bbox_cover_matches_a_loop_oracle():
-    from sc_fem.fill import bbox_cover
+    from sc_fem.lattice.fill import bbox_cover
 
     boxes = [trimesh.creation.box(extents=e) for e in ((1, 1, 1), (0.5, 2, 0.3), (0.2, 0.2, 0.2))]
     for b, t in zip(boxes, ((0, 0, 0), (0.4, 0.1, 0.2), (-0.3, 0.5, 0.6))):
@@ -336,8 +336,8 @@ def test_an_obstacle_that_cuts_the_model_at_rest_is_a_set_up_error():
     import numpy as np
 
     from sc_fem.errors import InputError
-    from sc_fem.integrators import make_integrator
-    from sc_fem.integrators.contact import Contact, Ground, Sphere
+    from sc_fem.dynamics import make_integrator
+    from sc_fem.dynamics.contact import Contact, Ground, Sphere
 
     mesh = sc_fem.load_mesh("builtin:beam")
     model = sc_fem.voxelize(mesh, resolution=8)
@@ -383,7 +383,7 @@ def test_bspline_baseline_survives_bunched_curve_points():
 
 def test_play_warns_about_aliasing_and_invisible_motion(tmp_path, capsys):
     from sc_fem._cli.main import main
-    from sc_fem.player import playback_warnings
+    from sc_fem.modes.player import playback_warnings
 
     basis = sc_fem.modal("builtin:chair", resolution=12, n_modes=6, fix="z<min+0.01")
     path = tmp_path / "chair.modes.npz"
@@ -402,10 +402,10 @@ def test_play_warns_about_aliasing_and_invisible_motion(tmp_path, capsys):
 def test_simulate_warns_when_energy_grows_with_nothing_feeding_it(tmp_path, capsys, monkeypatch):
     import dataclasses
 
-    import sc_fem.integrators as integrators
+    import sc_fem.dynamics.driver as driver
     from sc_fem._cli.main import main
 
-    real = integrators.record
+    real = driver.record
 
     def drifting(*a, **kw):          # the same run, its energy made to grow by 30 % of T + U
         rec = real(*a, **kw)
@@ -416,6 +416,6 @@ def test_simulate_warns_when_energy_grows_with_nothing_feeding_it(tmp_path, caps
             "--duration", "0.01", "-o", str(tmp_path / "a.npz"), "--quiet"]
     assert main(argv) == 0
     assert "warning" not in capsys.readouterr().err
-    monkeypatch.setattr(integrators, "record", drifting)
+    monkeypatch.setattr(driver, "record", drifting)
     assert main(argv) == 0
     assert "warning: the total energy grew by 30 %" in capsys.readouterr().err

@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sc_fem.assemble import Assembler
-from sc_fem.eigen import rigid_body_modes, solve_eigen
+from sc_fem.fem.assemble import Assembler
+from sc_fem.fem.eigen import rigid_body_modes, solve_eigen
 from sc_fem.errors import InputError, SolverError
-from sc_fem.lattice import CubeModel
-from sc_fem.linsolve import available_backends
-from sc_fem.modal import damping_ratios, modal
+from sc_fem.lattice.cubes import CubeModel
+from sc_fem.fem.linsolve import available_backends
+from sc_fem.modes.modal import damping_ratios, modal
 
 
 def _free_cube():
@@ -115,8 +115,8 @@ def test_eigensolvers_agree():
 
 
 def test_auto_method_switches_to_lobpcg_when_the_factor_does_not_fit():
-    from sc_fem import eigen
-    from sc_fem.boundary import fixed_dofs, fixed_nodes
+    from sc_fem.fem import eigen
+    from sc_fem.fem.boundary import fixed_dofs, fixed_nodes
 
     # a thin plate: its estimated Cholesky fill (~ n^(4/3)) outgrows the LOBPCG estimate (~ nnz)
     # already at 3.6k DOFs, so a budget between the two exists for the very matrix modal factorizes
@@ -138,7 +138,7 @@ def test_auto_method_switches_to_lobpcg_when_the_factor_does_not_fit():
 
 
 def test_max_frequency_returns_every_mode_below_it(monkeypatch):
-    from sc_fem import linsolve
+    from sc_fem.fem import linsolve
 
     m = CubeModel.box((8, 2, 2), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
     many = modal(m, n_modes=30, fix="x<min+0")
@@ -174,10 +174,10 @@ def test_damping_rayleigh_and_ratio():
 def test_resolution_auto_picks_the_coarsest_converged_grid(monkeypatch):
     import importlib
 
-    embed = importlib.import_module("sc_fem.embed")           # the module (sc_fem.embed is the function)
+    embed = importlib.import_module("sc_fem.lattice.embed")     # the module (sc_fem.embed is the function)
     baked = []
-    embed_fn = embed.embed
-    monkeypatch.setattr(embed, "embed", lambda model, pts: baked.append(model.n_cubes) or embed_fn(model, pts))
+    embed_fn = embed.embedding
+    monkeypatch.setattr(embed, "embedding", lambda model, pts: baked.append(model.n_cubes) or embed_fn(model, pts))
     grids = (10, 20, 30, 40)
     b = modal("builtin:beam", resolution="auto", resolutions=grids, tolerance=1e-3, n_modes=2,
               fix="x<min+1e-6", voxelize_options={"fill": "solid"})
@@ -203,7 +203,7 @@ def test_resolution_auto_picks_the_coarsest_converged_grid(monkeypatch):
 
 # regression values (not physics): frequencies of the built-in models as computed by this code,
 # identical to ~1e-12 with the splu and cholmod backends. Produced by
-#   .venv/bin/python -c "from sc_fem.modal import modal; print(modal('builtin:chair', resolution=16, n_modes=4,
+#   .venv/bin/python -c "from sc_fem.modes.modal import modal; print(modal('builtin:chair', resolution=16, n_modes=4,
 #   fix='z<min+0.01', backend='splu').frequencies.tolist())"   (and bridge: resolution=24, fix='z<min+0.05')
 CHAIR_R16_HZ = [8.157053975596876, 8.313978648691968, 14.006400587481103, 30.434407910299083]
 BRIDGE_R24_HZ = [13.694105958371383, 17.431763422980968, 20.61043235520006, 20.875847604076363]

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from sc_fem.errors import ModeFileError
-from sc_fem.lattice import CubeModel
-from sc_fem.modal import modal
-from sc_fem.modefile import MODES_FORMAT_VERSION, load_modes, save_modes
+from sc_fem.lattice.cubes import CubeModel
+from sc_fem.modes.modal import modal
+from sc_fem.io.modes import MODES_FORMAT_VERSION, load_modes, save_modes
 
 
 @pytest.fixture(scope="module")

@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 from scipy.linalg import eigh
 
-from sc_fem.boundary import fixed_nodes
+from sc_fem.fem.boundary import fixed_nodes
 from sc_fem.errors import InputError
-from sc_fem.integrators import make_integrator, record, simulate
-from sc_fem.integrators.loads import Gravity, LoadSet
-from sc_fem.integrators.newmark import Newmark
-from sc_fem.lattice import CubeModel
-from sc_fem.static import solve_static
+from sc_fem.dynamics import make_integrator, record, simulate
+from sc_fem.dynamics.loads import Gravity, LoadSet
+from sc_fem.dynamics.newmark import Newmark
+from sc_fem.lattice.cubes import CubeModel
+from sc_fem.fem.static import solve_static
 
 G = (0.0, 0.0, -9.81)
 
@@ -109,9 +109,9 @@ def test_load_patterns_match_the_dense_scatter(rng):
     equal W^T applied to the dense per-vertex force array built with np.add.at."""
     import trimesh
 
-    from sc_fem.embed import embed
-    from sc_fem.integrators.loads import FacePressure, VertexForce
-    from sc_fem.voxelize import voxelize
+    from sc_fem.lattice.embed import embed
+    from sc_fem.dynamics.loads import FacePressure, VertexForce
+    from sc_fem.lattice.voxelize import voxelize
 
     mesh = trimesh.creation.box(extents=[0.4, 0.2, 0.1])
     model = voxelize(mesh, resolution=6, youngs=1e6, poisson=0.3, density=500.0, fill="solid")

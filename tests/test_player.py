@@ -7,9 +7,9 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from sc_fem.errors import InputError
-from sc_fem.lattice import CubeModel
-from sc_fem.modal import modal
-from sc_fem.player import ModalPlayer, transition
+from sc_fem.lattice.cubes import CubeModel
+from sc_fem.modes.modal import modal
+from sc_fem.modes.player import ModalPlayer, transition
 
 
 @pytest.fixture(scope="module")

@@ -371,7 +371,7 @@ def test_fit_rejects_nan_and_bspline_bad_input():
 
 # ---------------------------------------------------------------- lattice node lines
 def test_lattice_lines_partition_the_nodes_along_the_long_axis():
-    from sc_fem.lattice import CubeModel
+    from sc_fem.lattice.cubes import CubeModel
 
     m = CubeModel.box((6, 2, 3), 0.1)
     lines = R.lattice_lines(m)
@@ -388,7 +388,7 @@ def test_lattice_lines_partition_the_nodes_along_the_long_axis():
 
 def test_mesh_from_lattice_lines_is_exactly_the_embedding():
     import sc_fem
-    from sc_fem.lattice import CubeModel
+    from sc_fem.lattice.cubes import CubeModel
 
     rng = np.random.default_rng(3)
     m = CubeModel.box((8, 2, 2), 0.1)

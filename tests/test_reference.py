@@ -8,7 +8,7 @@ import pytest
 import trimesh
 
 import sc_fem
-from sc_fem.reference import closed_manifold, solve_reference
+from sc_fem.fem.reference import closed_manifold, solve_reference
 
 STEEL = dict(youngs=200e9, poisson=0.3, density=7850.0)
 SOFT = dict(youngs=1e7, poisson=0.3, density=1000.0)

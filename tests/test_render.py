@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import sc_fem
-from sc_fem import render
+from sc_fem.io import render
 from sc_fem.errors import InputError, RenderError
 
 

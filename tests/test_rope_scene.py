@@ -3,7 +3,7 @@
 import numpy as np
 
 from sc_fem import models
-from sc_fem.rope_scene import rope_scene
+from sc_fem.dynamics.rope_scene import rope_scene
 
 
 def test_rope_scene_swings_down_and_curves_follow_surface():

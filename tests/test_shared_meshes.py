@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import sc_fem
-from sc_fem.embed import embedding
+from sc_fem.lattice.embed import embedding
 from conftest import SHARED_MESHES
 
 NAMES = sorted(p.name for p in SHARED_MESHES.glob("*") if p.suffix in (".obj", ".off", ".stl")) \

@@ -7,12 +7,12 @@ import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
-from sc_fem.assemble import Assembler
-from sc_fem.boundary import fixed_dofs, fixed_nodes
+from sc_fem.fem.assemble import Assembler
+from sc_fem.fem.boundary import fixed_dofs, fixed_nodes
 from sc_fem.errors import InputError, SolverError
-from sc_fem.lattice import CubeModel
-from sc_fem.linsolve import available_backends, factorize
-from sc_fem.static import solve_static
+from sc_fem.lattice.cubes import CubeModel
+from sc_fem.fem.linsolve import available_backends, factorize
+from sc_fem.fem.static import solve_static
 
 # steel cantilever L = 1 m, 0.1 x 0.1 m, clamped at x = 0; converged 3-D answers (27-node
 # elements extrapolated to zero size): first frequency and tip deflection under 1 kN
@@ -99,7 +99,7 @@ def test_point_forces_and_vertex_displacements():
     assert np.allclose(r1.displacements, r2.displacements, rtol=0, atol=1e-12 * r2.max_displacement)
     assert np.allclose(r1.vertex_displacements[0], r2.displacements[node], rtol=1e-12)
     # a point inside a cube gets the trilinear interpolation of its cube's node displacements
-    from sc_fem.embed import embed
+    from sc_fem.lattice.embed import embed
 
     W = embed(model, pts)
     assert np.allclose(r1.vertex_displacements, W @ r1.displacements, rtol=1e-13)

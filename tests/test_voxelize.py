@@ -9,7 +9,7 @@ import trimesh
 
 import sc_fem
 from sc_fem.errors import InputError, MaterialError, ResolutionError, ScFemError
-from sc_fem.voxelize import grid_for, hash_samples
+from sc_fem.lattice.voxelize import grid_for, hash_samples
 
 
 def box_mesh(extents, corner=(0.0, 0.0, 0.0)):
@@ -149,7 +149,7 @@ def test_components_keep_and_connectivity():
 def test_hexes_follow_skfem_corner_order():
     m = sc_fem.CubeModel.box((3, 2, 2), 0.5)
     corners = m.nodes[m.hexes] - m.nodes[m.hexes[:, :1]]
-    np.testing.assert_allclose(corners, 0.5 * sc_fem.lattice.HEX_CORNERS[None].repeat(m.n_cubes, 0))
+    np.testing.assert_allclose(corners, 0.5 * sc_fem.lattice.cubes.HEX_CORNERS[None].repeat(m.n_cubes, 0))
     sk = m.to_skfem()
     assert sk.t.shape == (8, 12) and np.allclose(sk.p.T, m.nodes_m)
 

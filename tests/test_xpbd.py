@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from sc_fem.errors import BoundaryConditionError, InputError, InstabilityError, ScFemError
-from sc_fem.lattice import HEX_CORNERS, CubeModel
-from sc_fem.static import solve_static
-from sc_fem.xpbd import XPBDSolver, cube_colors, simulate_xpbd, stability_sweep
+from sc_fem.lattice.cubes import HEX_CORNERS, CubeModel
+from sc_fem.fem.static import solve_static
+from sc_fem.dynamics.xpbd import XPBDSolver, cube_colors, simulate_xpbd, stability_sweep
 
 
 def _holey_model():

@@ -22,40 +22,47 @@ _LAZY: dict[str, str] = {
     "MeshFileError": ".errors", "MaterialError": ".errors", "ResolutionError": ".errors",
     "BoundaryConditionError": ".errors", "SolverError": ".errors", "InstabilityError": ".errors",
     "ModeFileError": ".errors", "RenderError": ".errors",
-    # foundation
-    "load_mesh": ".mesh", "Material": ".material", "lame": ".material",
-    "CubeModel": ".lattice", "Embedding": ".embed",
+    # geometry -> lattice
+    "load_mesh": ".geometry.mesh", "CubeModel": ".lattice.cubes", "Embedding": ".lattice.embed",
+    "Scene": ".scene",
     # FEM core
-    "Assembler": ".assemble",
-    "FixSpec": ".boundary", "parse_fix": ".boundary", "fixed_nodes": ".boundary",
-    "fixed_dofs": ".boundary", "read_vertex_file": ".boundary",
-    "factorize": ".linsolve", "Factorization": ".linsolve",
-    "solve_static": ".static", "StaticResult": ".static",
-    "ELEMENTS": ".elements", "DEFAULT_ELEMENT": ".elements",
+    "Material": ".fem.material", "lame": ".fem.material", "Assembler": ".fem.assemble",
+    "FixSpec": ".fem.boundary", "parse_fix": ".fem.boundary", "fixed_nodes": ".fem.boundary",
+    "fixed_dofs": ".fem.boundary", "read_vertex_file": ".fem.boundary",
+    "factorize": ".fem.linsolve", "Factorization": ".fem.linsolve",
+    "solve_static": ".fem.static", "StaticResult": ".fem.static",
+    "ELEMENTS": ".fem.elements", "DEFAULT_ELEMENT": ".fem.elements",
+    "solve_eigen": ".fem.eigen", "EigenResult": ".fem.eigen", "EigenSolver": ".fem.eigen",
     # files
-    "save_model": ".modelfile", "load_model": ".modelfile",
-    "Animation": ".animfile", "save_animation": ".animfile", "load_animation": ".animfile",
-    # XPBD and the cube-rope scene
-    "XPBDSolver": ".xpbd", "XPBDState": ".xpbd", "XPBDEnergy": ".xpbd", "simulate_xpbd": ".xpbd",
-    "rope_scene": ".rope_scene", "RopeScene": ".rope_scene",
+    "save_model": ".io.model", "load_model": ".io.model",
+    "Animation": ".io.animation", "save_animation": ".io.animation", "load_animation": ".io.animation",
+    "save_modes": ".io.modes", "load_modes": ".io.modes",
     # modal analysis
-    "ModalBasis": ".modal", "save_modes": ".modefile", "load_modes": ".modefile",
-    "ModalPlayer": ".player", "run_batch": ".batch", "BatchResult": ".batch",
-    "solve_eigen": ".eigen", "EigenResult": ".eigen", "EigenSolver": ".eigen",
-    # dynamics (loads and contact classes live in sc_fem.integrators)
-    "simulate": ".integrators", "make_integrator": ".integrators",
-    "Newmark": ".integrators.newmark", "Corotational": ".integrators.corotational",
-    "CentralDifference": ".integrators.central", "critical_time_step": ".integrators.central",
+    "ModalBasis": ".modes.modal", "ModalPlayer": ".modes.player", "run_batch": ".modes.batch",
+    "BatchResult": ".modes.batch",
+    # dynamics (loads and contact classes live in sc_fem.dynamics)
+    "simulate": ".dynamics.driver", "make_integrator": ".dynamics.driver",
+    "Newmark": ".dynamics.newmark", "Corotational": ".dynamics.corotational",
+    "CentralDifference": ".dynamics.central", "critical_time_step": ".dynamics.central",
+    "XPBDSolver": ".dynamics.xpbd", "XPBDState": ".dynamics.xpbd", "XPBDEnergy": ".dynamics.xpbd",
+    "simulate_xpbd": ".dynamics.xpbd", "rope_scene": ".dynamics.rope_scene", "RopeScene": ".dynamics.rope_scene",
 }
 
-_SUBMODULES = ("models", "xpbd", "reconstruct", "render", "integrators")
+# subpackages by pipeline stage, and the old module names users already import (``sc_fem.models``,
+# ``sc_fem.integrators``, ``sc_fem.xpbd``, ``sc_fem.render``) as aliases of their new homes
+_SUBMODULES: dict[str, str] = {
+    "geometry": ".geometry", "lattice": ".lattice", "fem": ".fem", "modes": ".modes",
+    "dynamics": ".dynamics", "reconstruct": ".reconstruct", "io": ".io",
+    "models": ".geometry.models", "integrators": ".dynamics", "xpbd": ".dynamics.xpbd",
+    "render": ".io.render",
+}
 
 # Functions that share their module's name are imported eagerly: otherwise ``import
-# sc_fem.voxelize`` (the submodule) would replace the function attribute with the module.
-from .assemble import assemble  # noqa: E402
-from .embed import embed  # noqa: E402
-from .modal import modal  # noqa: E402
-from .voxelize import voxelize  # noqa: E402
+# sc_fem.lattice.voxelize`` (the submodule) could shadow the function.
+from .fem.assemble import assemble  # noqa: E402
+from .lattice.embed import embed  # noqa: E402
+from .lattice.voxelize import voxelize  # noqa: E402
+from .modes.modal import modal  # noqa: E402
 
 __all__ = sorted([*_LAZY, *_SUBMODULES, "assemble", "embed", "modal", "voxelize", "__version__"])
 
@@ -66,7 +73,7 @@ def __getattr__(name: str) -> Any:
         globals()[name] = value
         return value
     if name in _SUBMODULES:
-        mod = importlib.import_module(f".{name}", __name__)
+        mod = importlib.import_module(_SUBMODULES[name], __name__)
         globals()[name] = mod
         return mod
     raise AttributeError(f"module 'sc_fem' has no attribute {name!r}")

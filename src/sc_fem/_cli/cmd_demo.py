@@ -19,10 +19,10 @@ def register(sub) -> None:
 
 
 def _voxel_pictures(out: Path, resolution: int) -> list[Path]:
-    from ..mesh import load_mesh
-    from ..modelfile import save_model
-    from ..render import plot_cubes_over_mesh
-    from ..voxelize import voxelize
+    from ..geometry.mesh import load_mesh
+    from ..io.model import save_model
+    from ..io.render import plot_cubes_over_mesh
+    from ..lattice.voxelize import voxelize
     from .common import model_summary
 
     written = []
@@ -40,9 +40,9 @@ def _voxel_pictures(out: Path, resolution: int) -> list[Path]:
 
 def _rope_reconstruction(out: Path) -> list[Path]:
     """XPBD cube-rope (11 keyframes at 20 fps), then PDE reconstruction from the even frames."""
-    from ..animfile import save_animation
-    from ..render import render_animation
-    from ..rope_scene import rope_scene
+    from ..io.animation import save_animation
+    from ..io.render import render_animation
+    from ..dynamics.rope_scene import rope_scene
     from .main import build_parser
 
     scene = rope_scene(n_frames=11, fps=20.0, substeps=180)       # substep 1/3600 s

@@ -82,8 +82,8 @@ def register(sub) -> None:
 
 # ---------------------------------------------------------------------------------------- precompute
 def _modal_options(args) -> dict:
-    """Keyword arguments of :func:`sc_fem.modal.modal` from the command line."""
-    from ..boundary import read_vertex_file
+    """Keyword arguments of :func:`sc_fem.modes.modal.modal` from the command line."""
+    from ..fem.boundary import read_vertex_file
 
     vopts = {k: v for k, v in voxelize_options(args).items() if not (k == "pitch" and v is None)}
     opts = dict(resolution=args.resolution, n_modes=args.modes, max_frequency=args.max_frequency, element=args.element,
@@ -123,7 +123,7 @@ def precompute_summary(basis, timings: dict) -> str:
 
 
 def run_precompute(args) -> int:
-    from ..batch import expand_inputs
+    from ..modes.batch import expand_inputs
 
     meshes = expand_inputs(args.mesh)
     out = Path(args.output)
@@ -134,9 +134,10 @@ def run_precompute(args) -> int:
 
     if out.suffix.lower() != ".npz":
         raise InputError(f"the mode file must end in .npz, got {out.name!r} (give a folder ending in / for a batch)")
-    from ..modal import format_resolution_table, modal
-    from ..modefile import save_modes
-    from ..models import expand_fix
+    from ..modes.auto import format_resolution_table
+    from ..modes.modal import modal
+    from ..io.modes import save_modes
+    from ..geometry.models import expand_fix
 
     timings: dict = {}
     opts = _modal_options(args)
@@ -158,7 +159,7 @@ def run_precompute(args) -> int:
 
 
 def _run_batch(args, meshes: list[str], out: Path) -> int:
-    from ..batch import run_batch
+    from ..modes.batch import run_batch
 
     opts = _modal_options(args)
     res = run_batch(meshes, out, options=opts, scheduler=args.scheduler, n_workers=args.workers,
@@ -179,7 +180,7 @@ def _player_from_args(args):
     import numpy as np
 
     from ..errors import InputError
-    from ..player import ModalPlayer
+    from ..modes.player import ModalPlayer
 
     player = ModalPlayer(args.modes)
     b = player.basis
@@ -204,7 +205,7 @@ def run_play(args) -> int:
     import numpy as np
 
     from ..errors import InputError
-    from ..render import render_animation
+    from ..io.render import render_animation
 
     player = _player_from_args(args)
     b = player.basis
@@ -215,7 +216,7 @@ def run_play(args) -> int:
     frames = player.frames(args.duration, args.fps)
     if args.exaggerate != 1.0:
         frames = b.vertices[None] + args.exaggerate * (frames - b.vertices[None])
-    from ..player import playback_warnings
+    from ..modes.player import playback_warnings
 
     for w in playback_warnings(b, frames, args.fps, args.exaggerate):
         print(f"sc-fem play: warning: {w}", file=sys.stderr)
@@ -232,7 +233,7 @@ def _interactive(player, args) -> int:  # pragma: no cover - needs a display
 
     import pyvista as pv
 
-    from ..render import surface_polydata
+    from ..io.render import surface_polydata
 
     b = player.basis
     mesh = surface_polydata(b.vertices, b.faces)
@@ -250,8 +251,8 @@ def _interactive(player, args) -> int:  # pragma: no cover - needs a display
 
 
 def run_sheet(args) -> int:
-    from ..modefile import load_modes
-    from ..player import modes_sheet
+    from ..io.modes import load_modes
+    from ..modes.player import modes_sheet
 
     basis = load_modes(args.modes)
     path = modes_sheet(basis, args.output, n_modes=args.count, columns=args.columns)
@@ -269,11 +270,11 @@ def demo_modal(out_dir, *, resolution: int = 24, n_modes: int = 8) -> list[Path]
     """
     import numpy as np
 
-    from .. import models
-    from ..modal import modal
-    from ..modefile import save_modes
-    from ..player import ModalPlayer, modes_sheet
-    from ..render import render_animation
+    from ..geometry import models
+    from ..modes.modal import modal
+    from ..io.modes import save_modes
+    from ..modes.player import ModalPlayer, modes_sheet
+    from ..io.render import render_animation
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

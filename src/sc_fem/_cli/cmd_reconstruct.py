@@ -77,7 +77,7 @@ def markdown_report(frames, e_pde, e_bs, timings: dict, counts: dict, info: dict
 def run(args) -> int:
     from .. import reconstruct as rec
     from .._atomic import atomic_path, save_npz_atomic
-    from ..animfile import load_animation
+    from ..io.animation import load_animation
 
     path = Path(args.animation)
     anim = load_animation(path)

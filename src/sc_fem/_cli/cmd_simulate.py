@@ -14,20 +14,17 @@ from pathlib import Path
 
 import numpy as np
 
+from .._validate import positive_scalar
+from ..errors import InputError, RenderError
 from .common import (add_element_arg, add_fix_args, add_grid_args, add_material_args, add_mesh_arg,
-                     model_summary, stage, voxelize_from_args)
-
-ENERGY_GAIN_WARN = 0.05
-"""Energy gained (fraction of the largest kinetic + elastic energy) past which simulate warns."""
-
-OUTPUTS = (".npz", ".xdmf", ".mp4", ".gif")
+                     model_summary, scene_from_args, stage)
 
 
 def register(sub) -> None:
     p = sub.add_parser(
         "simulate", help="time integration (Newmark, corotational, central differences) with loads and contact",
         description="Simulate MESH as elastic cubes for DURATION seconds with step DT and write the source "
-                    "mesh's vertex animation: .npz (sc_fem.animfile), .xdmf (ParaView time series, point data "
+                    "mesh's vertex animation: .npz (sc_fem.io.animation), .xdmf (ParaView time series, point data "
                     "'displacement' in model units: apply Warp By Vector), or a rendered .mp4/.gif. "
                     "A run that blows up stops with the time step and dt_crit and writes nothing.")
     add_mesh_arg(p)
@@ -42,7 +39,7 @@ def register(sub) -> None:
     p.add_argument("--substeps", type=int, default=20, help="XPBD substeps per --dt step (default 20)")
     p.add_argument("--iterations", type=int, default=1, help="XPBD solver iterations per substep (default 1)")
     p.add_argument("--constraints", choices=("neohookean", "corotational", "distance"), default="neohookean",
-                   help="XPBD constraints (default neohookean; see sc_fem.xpbd)")
+                   help="XPBD constraints (default neohookean; see sc_fem.dynamics.xpbd)")
     p.add_argument("--xpbd-damping", type=float, default=0.0, help="XPBD mass-proportional damping, 1/s")
     add_element_arg(p)
     p.add_argument("--beta", type=float, default=None, help="Newmark beta (default 1/4, or the HHT value)")
@@ -72,191 +69,59 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def _impulse_nodes(args, model, W, n_vertices: int) -> np.ndarray | None:
-    from ..errors import InputError
-
-    if not args.impulse:
-        return None
-    J = np.zeros((n_vertices, 3))
-    for vert, jx, jy, jz in args.impulse:          # loop over a few user impulses
-        if not float(vert).is_integer() or not 0 <= int(vert) < n_vertices:
-            raise InputError(f"--impulse VERTEX must be a vertex index in [0, {n_vertices}), got {vert:g}")
-        J[int(vert)] += (jx, jy, jz)
-    return np.asarray(W.T @ J)
-
-
-def build(args, mesh, model, W):
-    """Integrator for the parsed ``args`` (used by :func:`run` and :func:`demo_dynamics`)."""
-    from ..errors import InputError
-    from ..integrators import make_integrator
-    from ..integrators.contact import Contact, obstacles_from
-    from ..integrators.loads import Gravity, LoadSet, VertexForce, half_sine
-    from .common import fixed_nodes_from_args
-
-    verts = np.asarray(mesh.vertices, dtype=float)
-    fixed = fixed_nodes_from_args(args, model, mesh)
-    loads = []
-    if args.gravity:
-        loads.append(Gravity((0.0, 0.0, -9.81)))
-    if args.gust is not None:
-        fx, fy, fz, secs = args.gust
-        if not secs > 0:
-            raise InputError(f"--gust SECONDS must be > 0, got {secs:g}")
-        loads.append(VertexForce(np.arange(len(verts)), np.array([fx, fy, fz]) / len(verts), half_sine(secs)))
-    loadset = LoadSet(model, loads, points=verts, faces=mesh.faces, W=W)
-    obs = obstacles_from(args.ground, args.sphere, args.box)
-    contact = Contact(model, verts, obs, W=W) if obs else None      # the integrator binds it to `fixed`
-    kw = {"fixed_nodes": fixed, "loads": loadset, "contact": contact, "rayleigh": tuple(args.rayleigh),
-          "element": args.element}
-    if args.method != "central":
-        kw.update(beta=args.beta, gamma=args.gamma, alpha=args.hht_alpha)
-    elif args.beta is not None or args.gamma is not None or args.hht_alpha:
-        raise InputError("--beta, --gamma and --hht-alpha apply to the implicit methods, not to 'central'")
-    integ = make_integrator(args.method, model, args.dt, **kw)
-    J = _impulse_nodes(args, model, W, len(verts))
-    if J is not None:
-        integ.set_velocity_from_impulse(J)
-    return integ
-
-
-def record_xpbd(args, mesh, model, W, n_steps: int, every: int, progress: bool):
-    """Run XPBD (:class:`sc_fem.xpbd.XPBDSolver`) and record the source-mesh vertices every
-    ``every`` steps, as an :class:`sc_fem.integrators.Recording`."""
-    import time
-
-    from ..errors import InputError
-    from ..integrators import Recording
-    from ..xpbd import XPBDSolver
-    from .common import fixed_nodes_from_args
-
-    unsupported = [flag for flag, on in (
-        ("--gust", args.gust is not None), ("--impulse", bool(args.impulse)), ("--ground", args.ground is not None),
-        ("--sphere", args.sphere is not None), ("--box", args.box is not None), ("--rayleigh", any(args.rayleigh)),
-        ("--hht-alpha", bool(args.hht_alpha)), ("--beta", args.beta is not None),
-        ("--gamma", args.gamma is not None)) if on]
-    if unsupported:
-        raise InputError(f"--method xpbd supports gravity and --fix only, not {', '.join(unsupported)}")
-    t0 = time.perf_counter()
-    solver = XPBDSolver(model, args.dt, substeps=args.substeps, iterations=args.iterations,
-                        constraints=args.constraints, gravity=(0.0, 0.0, -9.81) if args.gravity else (0.0, 0.0, 0.0),
-                        fixed=fixed_nodes_from_args(args, model, mesh), damping=args.xpbd_damping)
-    setup = time.perf_counter() - t0
-    rest, X0 = np.asarray(mesh.vertices, dtype=float), model.nodes_m
-    times, points, energy, mechanical = [], [], [], []
-    t1 = time.perf_counter()
-    for st in solver.run(n_steps, progress=progress):          # loop over time steps
-        if st.step % every == 0 or st.step == n_steps:
-            e = solver.energy(st)
-            times.append(st.time)
-            points.append(rest + (W @ (st.positions - X0)) / model.scale)
-            energy.append(e.total)
-            mechanical.append(e.mechanical)
-    return Recording(times=np.array(times), u=np.zeros((0, model.n_nodes, 3)), energy=np.array(energy),
-                     mechanical=np.array(mechanical), points=np.array(points), n_steps=n_steps,
-                     seconds=time.perf_counter() - t1, setup_seconds=setup, method="xpbd", dt=args.dt,
-                     info={"substeps": args.substeps, "iterations": args.iterations,
-                           "constraints": args.constraints})
-
-
-def write_xdmf(path: Path, rest: np.ndarray, faces: np.ndarray, times, positions) -> Path:
-    """XDMF time series (XML data, no HDF5 needed): the rest mesh and point data ``displacement``
-    (model units) per time; written atomically."""
-    import meshio
-
-    from .._atomic import atomic_path
-
-    cells = [("triangle", np.asarray(faces, dtype=np.int64))] if len(faces) else \
-        [("vertex", np.arange(len(rest), dtype=np.int64)[:, None])]
-    with atomic_path(path, suffix=".xdmf") as tmp:
-        with meshio.xdmf.TimeSeriesWriter(str(tmp), data_format="XML") as w:
-            w.write_points_cells(np.asarray(rest, dtype=float), cells)
-            for t, p in zip(times, positions):         # loop over frames
-                w.write_data(float(t), point_data={"displacement": np.asarray(p, dtype=float) - rest})
-    return path
-
-
-def _write(out: Path, mesh, rec, meta: dict, magnify: float, fps: float, progress: bool) -> Path:
-    from ..animfile import save_animation
-
-    rest = np.asarray(mesh.vertices, dtype=float)
-    faces = np.asarray(mesh.faces, dtype=np.int64)
-    kind = out.suffix.lower()
-    if kind == ".npz":
-        return save_animation(out, faces=faces, rest_vertices=rest, times=rec.times, positions=rec.points,
-                              energy=rec.energy, meta=meta)
-    if kind == ".xdmf":
-        return write_xdmf(out, rest, faces, rec.times, rec.points)
-    from ..render import render_animation
-
-    frames = rest[None] + magnify * (rec.points - rest[None])
-    title = f"{meta.get('source', '')} {meta['method']}" + (f" (x{magnify:g})" if magnify != 1 else "")
-    return render_animation(frames, faces, out, fps=min(fps, 30.0), title=title, progress=progress)
-
-
 def run(args) -> int:
-    from .._validate import positive_scalar
-    from ..embed import embed
-    from ..errors import InputError
-    from ..integrators import record
-    from ..mesh import load_mesh
+    from ..dynamics.job import NewmarkOptions, XPBDOptions, run_simulation
+    from ..io.animation import ANIMATION_OUTPUTS, write_animation
+
     out = Path(args.output)
-    if out.suffix.lower() not in OUTPUTS:
-        raise InputError(f"unsupported output {out.name!r}: use {', '.join(OUTPUTS)}")
-    for name in ("duration", "dt", "fps", "magnify"):
-        positive_scalar(getattr(args, name), f"--{name}")
-    n_steps = int(round(args.duration / args.dt))
-    if n_steps < 1:
+    if out.suffix.lower() not in ANIMATION_OUTPUTS:
+        raise InputError(f"unsupported output {out.name!r}: use {', '.join(ANIMATION_OUTPUTS)}")
+    for name, flag in (("duration", "--duration"), ("dt", "--dt"), ("fps", "--fps"), ("magnify", "--exaggerate")):
+        positive_scalar(getattr(args, name), flag)          # checked before any work, named as typed
+    if int(round(args.duration / args.dt)) < 1:
         raise InputError(f"--duration {args.duration:g} s is shorter than one step of --dt {args.dt:g} s")
-    every = max(1, int(round(1.0 / (args.fps * args.dt))))
     timings: dict = {}
     q = args.quiet
-    with stage("load", timings, q):
-        mesh = load_mesh(args.mesh)
+    progress = not (q or args.no_progress)
     with stage("voxelize", timings, q):
-        model = voxelize_from_args(args, mesh=mesh)
-        W = embed(model, np.asarray(mesh.vertices, dtype=float))
-    integ = None
-    if args.method == "xpbd":
-        with stage("simulate", timings, q):
-            rec = record_xpbd(args, mesh, model, W, n_steps, every, progress=not (q or args.no_progress))
-    else:
-        with stage("setup", timings, q):
-            integ = build(args, mesh, model, W)
-        with stage("simulate", timings, q):
-            rec = record(integ, n_steps, W=W, rest_points=np.asarray(mesh.vertices, float), scale=model.scale,
-                         every=every, progress=not (q or args.no_progress), keep_u=False)
-    dtc = integ.dt_crit if args.method == "central" else None
-    meta = {"method": args.method, "dt": args.dt, "duration": args.duration, "n_steps": n_steps,
-            "source": model.info.get("source", str(args.mesh)), "element": args.element,
-            "material": model.info.get("material", ""), "gravity": bool(args.gravity), "ground": args.ground,
-            "rayleigh": list(args.rayleigh), "hht_alpha": args.hht_alpha, "dt_crit": dtc,
-            "scale": model.scale, "cubes": model.n_cubes, **rec.info}
+        scene = scene_from_args(args)
+    with stage("simulate", timings, q):
+        rec = run_simulation(
+            scene, dt=args.dt, duration=args.duration, method=args.method, fps=args.fps, gravity=args.gravity,
+            gust=args.gust, ground=args.ground, sphere=args.sphere, box=args.box, impulses=args.impulse,
+            rayleigh=args.rayleigh, newmark=NewmarkOptions(beta=args.beta, gamma=args.gamma, alpha=args.hht_alpha),
+            xpbd=XPBDOptions(substeps=args.substeps, iterations=args.iterations, constraints=args.constraints,
+                             damping=args.xpbd_damping), element=args.element, progress=progress)
     with stage("write", timings, q):
-        _write(out, mesh, rec, meta, args.magnify, args.fps, progress=not (q or args.no_progress))
-    if rec.energy_drift > ENERGY_GAIN_WARN and args.gust is None:
-        # only a gust does work after t = 0 (impulses act at t = 0, damping and contact take energy out)
-        print(f"sc-fem simulate: warning: the total energy grew by {100 * rec.energy_drift:.3g} % of the largest "
-              f"kinetic + elastic energy with nothing feeding it: the run is not converged"
-              + (" (use more --substeps)" if args.method == "xpbd" else " (reduce --dt)"), file=sys.stderr)
+        write_animation(out, scene, rec, exaggerate=args.magnify, fps=args.fps, progress=progress)
+    for w in rec.info["warnings"]:
+        print(f"sc-fem simulate: warning: {w}", file=sys.stderr)
     if not q:
-        print(model_summary(model))
-        disp = np.linalg.norm(rec.points - rec.points[0], axis=2).max() if len(rec.points) else 0.0
-        kind = (f"{args.substeps} substeps x {args.iterations} iterations, {args.constraints}" if integ is None
-                else ("implicit" if integ.implicit else "explicit"))
-        rows = [("method", f"{args.method} ({kind})"),
-                ("steps", f"{n_steps:,} x {args.dt:g} s = {n_steps * args.dt:g} s ({len(rec.times)} frames)"),
-                ("time per step", f"{1e3 * rec.seconds_per_step:.3g} ms (setup {rec.setup_seconds:.3g} s)"),
-                ("energy drift", f"{rec.energy_drift:+.3e} of max(T + U) = {rec.mechanical.max():.4g} J"),
-                ("max vertex displacement", f"{disp:.4g} model units")]
-        if dtc is not None:
-            rows.append(("dt / dt_crit", f"{args.dt / dtc:.3g} (dt_crit = {dtc:.4g} s)"))
-        if integ is not None and integ.contact is not None:
-            rows.append(("max contact depth", f"{max(rec.max_contact_depth, 0.0):.3g} model units "
-                                              f"(tolerance {integ.contact.tol:.3g})"))
-        w = max(len(k) for k, _ in rows)
-        print("\n".join(f"  {k:<{w}}  {v}" for k, v in rows))
+        print(model_summary(scene.model))
+        print(run_summary(rec))
         print(f"wrote {out}")
     return 0
+
+
+def run_summary(rec) -> str:
+    """The lines ``sc-fem simulate`` prints about a run."""
+    info = rec.info
+    disp = np.linalg.norm(rec.points - rec.points[0], axis=2).max() if len(rec.points) else 0.0
+    kind = (f"{info['substeps']} substeps x {info['iterations']} iterations, {info['constraints']}"
+            if info["method"] == "xpbd" else ("implicit" if info["implicit"] else "explicit"))
+    n, dt = info["n_steps"], info["dt"]
+    rows = [("method", f"{info['method']} ({kind})"),
+            ("steps", f"{n:,} x {dt:g} s = {n * dt:g} s ({len(rec.times)} frames)"),
+            ("time per step", f"{1e3 * rec.seconds_per_step:.3g} ms (setup {rec.setup_seconds:.3g} s)"),
+            ("energy drift", f"{rec.energy_drift:+.3e} of max(T + U) = {rec.mechanical.max():.4g} J"),
+            ("max vertex displacement", f"{disp:.4g} model units")]
+    if info["dt_crit"] is not None:
+        rows.append(("dt / dt_crit", f"{dt / info['dt_crit']:.3g} (dt_crit = {info['dt_crit']:.4g} s)"))
+    if info["contact_tol"] is not None:
+        rows.append(("max contact depth", f"{max(rec.max_contact_depth, 0.0):.3g} model units "
+                                          f"(tolerance {info['contact_tol']:.3g})"))
+    w = max(len(k) for k, _ in rows)
+    return "\n".join(f"  {k:<{w}}  {v}" for k, v in rows)
 
 
 def demo_dynamics(out_dir, *, resolution: int = 16, quiet: bool = True) -> list[Path]:
@@ -264,29 +129,21 @@ def demo_dynamics(out_dir, *, resolution: int = 16, quiet: bool = True) -> list[
 
     Writes ``bridge_gust.npz`` (true displacements) and ``bridge_gust.gif`` (displacements x2000, 10x slow motion)
     under ``out_dir`` and returns their paths (about 10--20 s)."""
-    from .main import main
+    from ..dynamics.job import run_simulation
+    from ..io.animation import write_animation
+    from ..scene import Scene
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    common = ["builtin:bridge", "--resolution", str(resolution), "--fix", "default", "--gravity",
-              "--gust", "0", "2e7", "0", "0.02", "--duration", "0.5", "--dt", "0.001", "--rayleigh", "1.0", "2e-4",
-              "--fps", "250", "--no-progress"] + (["--quiet"] if quiet else [])
-    npz = out_dir / "bridge_gust.npz"
-    rc = main(["simulate", *common, "-o", str(npz)])
-    if rc != 0:
-        print(f"demo_dynamics: sc-fem simulate failed (exit {rc})", file=sys.stderr)
-        return []
-    written = [npz]
-    from ..animfile import load_animation
-    from ..errors import RenderError
-    from ..render import render_animation
-
-    anim = load_animation(npz)
-    frames = anim.rest_vertices[None] + 2000.0 * (anim.positions - anim.rest_vertices[None])
+    scene = Scene.from_mesh("builtin:bridge", resolution=resolution, fix="default")
+    rec = run_simulation(scene, dt=0.001, duration=0.5, gravity=True, gust=(0.0, 2e7, 0.0, 0.02),
+                         rayleigh=(1.0, 2e-4), fps=250)
+    written = [write_animation(out_dir / "bridge_gust.npz", scene, rec)]
     try:
-        written.append(render_animation(frames, anim.faces, out_dir / "bridge_gust.gif", fps=25,
-                                        title="bridge: gust + gravity, Newmark (x2000, 10x slow motion)",
-                                        window_size=(640, 400)))
+        written.append(write_animation(out_dir / "bridge_gust.gif", scene, rec, exaggerate=2000.0, fps=25,
+                                       title="bridge: gust + gravity, Newmark (x2000, 10x slow motion)"))
     except RenderError as exc:
         print(f"demo_dynamics: no video ({exc})", file=sys.stderr)
+    if not quiet:
+        print(run_summary(rec))
     return written

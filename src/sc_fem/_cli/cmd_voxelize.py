@@ -11,7 +11,7 @@ def register(sub) -> None:
     p = sub.add_parser("voxelize", help="voxelize a mesh into elastic cubes",
                        description="Voxelize MESH into elastic cubes and write OUT: a .png picture of the "
                                    "cubes over the mesh, the model as .npz (reloadable with "
-                                   "sc_fem.modelfile.load_model) or .vtu (ParaView).")
+                                   "sc_fem.io.model.load_model) or .vtu (ParaView).")
     add_mesh_arg(p)
     add_grid_args(p)
     add_material_args(p)
@@ -22,8 +22,8 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from ..errors import InputError
-    from ..mesh import load_mesh
-    from ..modelfile import save_model
+    from ..geometry.mesh import load_mesh
+    from ..io.model import save_model
 
     out = Path(args.output)
     if out.suffix.lower() not in (".png", ".npz", ".vtu"):
@@ -37,7 +37,7 @@ def run(args) -> int:
         model = voxelize_from_args(args, mesh=mesh)
     with stage("write", timings, args.quiet):
         if out.suffix.lower() == ".png":
-            from ..render import plot_cubes_over_mesh
+            from ..io.render import plot_cubes_over_mesh
 
             plot_cubes_over_mesh(model, mesh, out)
         else:

@@ -63,11 +63,23 @@ def voxelize_options(args) -> dict:
 
 def voxelize_from_args(args, mesh=None):
     """Run :func:`sc_fem.voxelize` with the grid/material options of ``args``."""
-    from ..voxelize import voxelize
+    from ..lattice.voxelize import voxelize
 
     res = args.resolution
     return voxelize(mesh if mesh is not None else args.mesh, resolution=None if res is None else int(res),
                     **voxelize_options(args))
+
+
+def scene_from_args(args, mesh=None):
+    """A :class:`sc_fem.Scene` from the mesh, grid, material and fix options of ``args``."""
+    from ..fem.boundary import read_vertex_file
+    from ..scene import Scene
+
+    res = args.resolution
+    fix_vertices = read_vertex_file(args.fix_vertices) if getattr(args, "fix_vertices", None) else None
+    return Scene.from_mesh(mesh if mesh is not None else args.mesh, resolution=None if res is None else int(res),
+                           fix=list(getattr(args, "fix", []) or []) or None, fix_vertices=fix_vertices,
+                           **voxelize_options(args))
 
 
 def model_summary(model) -> str:
@@ -109,19 +121,9 @@ def add_fix_args(p: argparse.ArgumentParser) -> None:
                    help="text file of source-mesh vertex indices (one a line); their cubes' nodes are fixed")
 
 
-def fixed_nodes_from_args(args, model, mesh):
-    """Node indices fixed by ``--fix`` / ``--fix-vertices`` (empty array when neither is given)."""
-    from ..boundary import fixed_nodes, read_vertex_file
-    from ..models import expand_fix
-
-    specs = expand_fix(args.fix, str(mesh.metadata.get("source", "")))
-    verts = read_vertex_file(args.fix_vertices) if args.fix_vertices else None
-    return fixed_nodes(model, fix=specs, vertices=verts, mesh_vertices=mesh.vertices)
-
-
 def add_element_arg(p: argparse.ArgumentParser) -> None:
-    """``--element`` with the element types of :data:`sc_fem.elements.ELEMENTS`."""
-    from ..elements import DEFAULT_ELEMENT, ELEMENTS
+    """``--element`` with the element types of :data:`sc_fem.fem.elements.ELEMENTS`."""
+    from ..fem.elements import DEFAULT_ELEMENT, ELEMENTS
 
     p.add_argument("--element", choices=ELEMENTS, default=DEFAULT_ELEMENT,
                    help=f"element type: {', '.join(ELEMENTS)} (default {DEFAULT_ELEMENT})")

@@ -1,0 +1,20 @@
+"""Dynamics of the lattice: the implicit (Newmark, corotational), explicit (central differences)
+and XPBD integrators, loads, contact, and the driver that runs and records them."""
+
+from .._lazy import lazy_getattr
+from .rope_scene import rope_scene  # bound eagerly: it shares its module's name
+
+_NAMES = {
+    "State": ".driver", "METHODS": ".driver", "make_integrator": ".driver", "simulate": ".driver",
+    "record": ".driver", "Recording": ".driver",
+    "Energy": ".base", "TimeIntegrator": ".base",
+    "Newmark": ".newmark", "Corotational": ".corotational",
+    "CentralDifference": ".central", "critical_time_step": ".central",
+    "Gravity": ".loads", "VertexForce": ".loads", "FacePressure": ".loads", "LoadSet": ".loads",
+    "half_sine": ".loads", "step": ".loads",
+    "Contact": ".contact", "Ground": ".contact", "Sphere": ".contact", "Box": ".contact",
+    "XPBDSolver": ".xpbd", "XPBDState": ".xpbd", "simulate_xpbd": ".xpbd",
+    "RopeScene": ".rope_scene",
+}
+__all__ = sorted([*_NAMES, "rope_scene"])
+__getattr__ = lazy_getattr(__name__, _NAMES)

@@ -1,0 +1,253 @@
+"""Time integration of the cube lattice: a common interface, several methods, one driver.
+
+Methods (one module each; all step a :class:`State` and are subclasses of
+:class:`~sc_fem.dynamics.base.TimeIntegrator`):
+
+==============  ==========================================================================
+``"newmark"``    :class:`~sc_fem.dynamics.newmark.Newmark` -- implicit Newmark-beta
+                 (average acceleration by default; ``gamma > 1/2`` or HHT ``alpha`` for
+                 numerical damping), Rayleigh damping; linear: one factorization, one
+                 back-solve per step.
+``"corotational"`` :class:`~sc_fem.dynamics.corotational.Corotational` -- the same scheme on
+                 the corotational (warped-stiffness) model for large rotations.
+``"central"``    :class:`~sc_fem.dynamics.central.CentralDifference` -- explicit central
+                 differences with lumped mass, stable for ``dt <= dt_crit = 2 / omega_max``.
+==============  ==========================================================================
+
+Loads (gravity, forces and pressures on the source mesh) are in :mod:`.loads`, obstacles
+(ground, sphere, box) in :mod:`.contact`. :func:`simulate` is the driver: a generator of states
+that computes the energy of each, and stops with :class:`~sc_fem.errors.InstabilityError` (naming
+the step and ``dt_crit``) when the run blows up. :func:`record` collects a run into a
+:class:`Recording`.
+
+Units: SI. Displacements ``u`` in metres at the lattice nodes, shape (m, 3).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time as _time
+from dataclasses import dataclass, field, replace
+from typing import Iterator
+
+import numpy as np
+
+
+@dataclass(frozen=True, eq=False)
+class State:
+    """A dynamic state of the lattice.
+
+    Attributes
+    ----------
+    time : float
+        Seconds.
+    u : ndarray, shape (m, 3)
+        Node displacements, m (zero on fixed nodes).
+    v : ndarray, shape (m, 3)
+        Node velocities, m/s.
+    a : ndarray, shape (m, 3)
+        Node accelerations, m/s^2.
+    step : int
+        Steps taken.
+    energy : float
+        Kinetic + elastic + gravity potential energy, J (NaN until :func:`simulate` fills it).
+    mechanical : float
+        Kinetic + elastic energy, J (>= 0; NaN until :func:`simulate` fills it).
+    """
+
+    time: float
+    u: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    step: int = 0
+    energy: float = float("nan")
+    mechanical: float = float("nan")
+
+
+METHODS = ("newmark", "corotational", "central", "xpbd")
+"""Method names accepted by :func:`make_integrator` (and ``sc-fem simulate --method``)."""
+
+
+def make_integrator(method: str, model, dt: float, **kw):
+    """Build the integrator ``method`` (one of :data:`METHODS`) for ``model`` with step ``dt`` (s).
+
+    Keyword arguments go to the class (``fixed_nodes``, ``loads``, ``contact``, ``rayleigh``,
+    ``beta``, ``gamma``, ``alpha``, ``element``, ...)."""
+    from ..errors import InputError
+
+    if method == "newmark":
+        from .newmark import Newmark as cls
+    elif method == "corotational":
+        from .corotational import Corotational as cls
+    elif method == "xpbd":
+        from .xpbd_integrator import XPBDIntegrator as cls
+    elif method == "central":
+        from .central import CentralDifference as cls
+        for k in ("beta", "gamma", "alpha", "iterations"):
+            if kw.pop(k, None) is not None:
+                raise InputError(f"method 'central' has no parameter {k!r}")
+    else:
+        raise InputError(f"method must be one of {list(METHODS)}, got {method!r}")
+    return cls(model, dt, **kw)
+
+
+def _blowup_message(integ, state_time: float, step: int, why: str) -> str:
+    try:
+        dtc = float(integ.dt_crit)
+        crit = f"dt_crit = {dtc:.4g} s (dt / dt_crit = {integ.dt / dtc:.3g})"
+    except Exception as exc:  # noqa: BLE001 - the message must still be raised
+        crit = f"dt_crit could not be computed ({exc})"
+    hint = ("use dt < dt_crit or an implicit method (--method newmark)" if not integ.implicit
+            else "reduce dt or add damping")
+    return (f"{integ.name} blew up at step {step} (t = {state_time:.6g} s, dt = {integ.dt:.4g} s): {why}; "
+            f"explicit stability limit {crit}; {hint}. Nothing was written.")
+
+
+def simulate(integrator, n_steps: int, *, every: int = 1, check: bool = True, growth: float = 10.0,
+             progress: bool = False) -> Iterator[State]:
+    """Run ``integrator`` for ``n_steps`` steps, yielding states with their energy filled in.
+
+    Yields the initial state, then every ``every``-th state and always the last one.
+
+    Blow-up check (``check=True``): the run stops with
+    :class:`~sc_fem.errors.InstabilityError` (naming the step, the time and ``dt_crit``) when
+    the state becomes non-finite or the mechanical energy ``T + U`` exceeds
+    ``growth * (T_0 + U_0 + |W_ext|)``, ``W_ext`` the work done by the loads so far (trapezoidal
+    rule). A stable run satisfies ``T + U <= T_0 + U_0 + W_ext`` (energy balance), so this only
+    fires on runaway growth. With ``check=False`` the energy and the load work are evaluated only
+    for the yielded states.
+    """
+    from ..errors import InputError, InstabilityError
+
+    n_steps = int(n_steps)
+    every = max(1, int(every))
+    if n_steps < 0:
+        raise InputError(f"n_steps must be >= 0, got {n_steps}")
+    st = integrator.state
+    e = integrator.energy()
+    e0 = e.mechanical
+    work = 0.0
+    loads = integrator.loads
+    f_prev = loads.force(st.time) if check else None
+    u_prev = st.u
+    yield replace(st, energy=e.total, mechanical=e.mechanical)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=n_steps, desc=integrator.name, unit="step", file=sys.stderr, mininterval=0.5)
+    try:
+        for k in range(1, n_steps + 1):
+            out = k % every == 0 or k == n_steps
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                st = integrator.step()
+                finite = bool(np.all(np.isfinite(st.u)) and np.all(np.isfinite(st.v)))
+                if check and finite:
+                    f = loads.force(st.time)
+                    work += 0.5 * float(np.sum((f + f_prev) * (st.u - u_prev)))
+                    f_prev, u_prev = f, st.u
+                if check or out:
+                    e = integrator.energy()
+            if check:
+                if not finite or not math.isfinite(e.total):
+                    raise InstabilityError(_blowup_message(integrator, st.time, k, "non-finite displacements"))
+                if e.mechanical > growth * (e0 + abs(work)) + 1e-300:
+                    raise InstabilityError(_blowup_message(
+                        integrator, st.time, k,
+                        f"energy {e.mechanical:.4g} J grew beyond {growth:g} x (initial energy + load work) "
+                        f"= {growth * (e0 + abs(work)):.4g} J"))
+            if bar is not None:
+                bar.update()
+            if out:
+                yield replace(st, energy=e.total, mechanical=e.mechanical)
+    finally:
+        if bar is not None:
+            bar.close()
+
+
+@dataclass(frozen=True, eq=False)
+class Recording:
+    """A recorded run (see :func:`record`).
+
+    Attributes
+    ----------
+    times : ndarray, shape (T,)
+        Seconds.
+    u : ndarray, shape (T, m, 3)
+        Node displacements, m.
+    energy : ndarray, shape (T,)
+        Total energy, J.
+    mechanical : ndarray, shape (T,)
+        Kinetic + elastic energy, J.
+    points : ndarray, shape (T, k, 3) or None
+        Positions of the embedded points (source-mesh vertices), model units.
+    n_steps : int
+        Steps taken.
+    seconds : float
+        Wall time of the stepping, s (excludes the set-up in ``setup_seconds``).
+    setup_seconds : float
+        Wall time of the integrator's assembly.
+    method : str
+    dt : float
+    max_contact_depth : float
+        Largest vertex penetration depth (model units) after any step (-inf without contact).
+    """
+
+    times: np.ndarray
+    u: np.ndarray
+    energy: np.ndarray
+    mechanical: np.ndarray
+    points: np.ndarray | None
+    n_steps: int
+    seconds: float
+    setup_seconds: float
+    method: str
+    dt: float
+    max_contact_depth: float = -math.inf
+    info: dict = field(default_factory=dict)
+
+    @property
+    def seconds_per_step(self) -> float:
+        return self.seconds / max(self.n_steps, 1)
+
+    @property
+    def energy_drift(self) -> float:
+        """``(E_end - E_0) / max(T + U)``: total-energy change relative to the largest kinetic +
+        elastic energy of the run (0 when nothing moves)."""
+        scale = float(np.max(self.mechanical)) if len(self.mechanical) else 0.0
+        return 0.0 if scale == 0 else float((self.energy[-1] - self.energy[0]) / scale)
+
+
+def record(integrator, n_steps: int, *, scene=None, every: int = 1, check: bool = True, growth: float = 10.0,
+           progress: bool = False, keep_u: bool = True) -> Recording:
+    """Run :func:`simulate` and collect the frames.
+
+    Parameters
+    ----------
+    scene : sc_fem.Scene, optional
+        The positions of its source vertices (``Scene.vertex_positions``, model units) are recorded.
+    keep_u : bool
+        Keep the node displacements of every frame (memory ``T * m * 3`` floats).
+    """
+    t0 = _time.perf_counter()
+    times, us, es, pts, mech = [], [], [], [], []
+    for st in simulate(integrator, n_steps, every=every, check=check, growth=growth, progress=progress):
+        times.append(st.time)
+        es.append(st.energy)
+        mech.append(st.mechanical)
+        if keep_u:
+            us.append(st.u)
+        if scene is not None:
+            pts.append(scene.vertex_positions(st.u))
+    secs = _time.perf_counter() - t0
+    m = integrator.model.n_nodes
+    return Recording(times=np.asarray(times), u=np.asarray(us) if keep_u else np.zeros((0, m, 3)),
+                     energy=np.asarray(es), mechanical=np.asarray(mech), points=np.asarray(pts) if scene is not None else None,
+                     n_steps=int(n_steps), seconds=secs, setup_seconds=getattr(integrator, "setup_seconds", 0.0),
+                     method=integrator.name, dt=integrator.dt,
+                     max_contact_depth=float(getattr(integrator, "max_contact_depth", -math.inf)),
+                     info=dict(getattr(integrator, "info", {})))
+
+
+__all__ = ["State", "METHODS", "make_integrator", "simulate", "record", "Recording"]

@@ -1,0 +1,147 @@
+"""One simulation job from a :class:`~sc_fem.Scene` and plain options: what ``sc-fem simulate``
+runs, callable from Python with the same meaning (loads, obstacles, impulses, method)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .._validate import positive_scalar
+from ..errors import InputError
+
+ENERGY_GAIN_WARN = 0.05
+"""Energy gained (fraction of the largest kinetic + elastic energy) past which a run is flagged."""
+
+GRAVITY = 9.81
+"""m/s^2."""
+
+
+@dataclass(frozen=True)
+class XPBDOptions:
+    """Options of the XPBD method (see :class:`~sc_fem.dynamics.xpbd.XPBDSolver`)."""
+
+    substeps: int = 20
+    iterations: int = 1
+    constraints: str = "neohookean"
+    damping: float = 0.0
+
+
+@dataclass(frozen=True)
+class NewmarkOptions:
+    """Options of the implicit methods: ``beta``, ``gamma`` (None: the scheme's default) and the
+    HHT ``alpha`` in [-1/3, 0]."""
+
+    beta: float | None = None
+    gamma: float | None = None
+    alpha: float = 0.0
+
+
+def impulse_nodes(scene, impulses) -> np.ndarray | None:
+    """Impulses ``[(vertex, Jx, Jy, Jz), ...]`` (N s) on source vertices, spread to the nodes (``W^T J``)."""
+    if not impulses:
+        return None
+    n = scene.rest_vertices.shape[0]
+    arr = np.asarray(impulses, dtype=float).reshape(-1, 4)
+    idx = arr[:, 0]
+    bad = ~(np.mod(idx, 1) == 0) | (idx < 0) | (idx >= n)
+    if np.any(bad):
+        raise InputError(f"impulse VERTEX must be a vertex index in [0, {n}), got {idx[bad][0]:g}")
+    J = np.zeros((n, 3))
+    np.add.at(J, idx.astype(np.int64), arr[:, 1:])
+    return scene.forces_to_nodes(J)
+
+
+def run_simulation(scene, *, dt: float, duration: float, method: str = "newmark", fps: float = 50.0,
+                   gravity: bool = False, gust=None, ground=None, sphere=None, box=None, impulses=(),
+                   rayleigh=(0.0, 0.0), newmark: NewmarkOptions = NewmarkOptions(),
+                   xpbd: XPBDOptions = XPBDOptions(), element: str | None = None, progress: bool = False):
+    """Simulate ``scene`` for ``duration`` s with step ``dt`` and record its source vertices.
+
+    Parameters
+    ----------
+    scene : sc_fem.Scene
+    dt, duration : float
+        Step and simulated time, s (XPBD: ``dt`` is the frame step, split in ``xpbd.substeps``).
+    method : {"newmark", "corotational", "central", "xpbd"}
+    fps : float
+        Frames per second recorded.
+    gravity : bool
+        Gravity 9.81 m/s^2 along -z.
+    gust : (Fx, Fy, Fz, seconds), optional
+        Total force (N) spread equally over the source vertices, half-sine pulse.
+    ground, sphere, box : optional
+        Obstacles in model units: plane ``z = ground``, ``(x, y, z, r)``, ``(x0, y0, z0, x1, y1, z1)``.
+    impulses : sequence of (vertex, Jx, Jy, Jz)
+        Impulses in N s on source vertices at t = 0.
+    rayleigh : (a0, a1)
+        Rayleigh damping ``C = a0 M + a1 K``.
+    newmark, xpbd : NewmarkOptions, XPBDOptions
+    element : str, optional
+        Element type (default :data:`sc_fem.DEFAULT_ELEMENT`).
+
+    Returns
+    -------
+    sc_fem.dynamics.Recording
+        With ``points`` (T, n, 3) model units and ``info``: the run's record for the output file,
+        and ``info["warnings"]`` (e.g. energy grown with nothing feeding it).
+    """
+    from ..fem.elements import DEFAULT_ELEMENT
+    from .contact import Contact, obstacles_from
+    from .driver import METHODS, make_integrator, record
+    from .loads import Gravity, LoadSet, VertexForce, half_sine
+
+    if method not in METHODS:
+        raise InputError(f"method must be one of {list(METHODS)}, got {method!r}")
+    dt, duration, fps = (positive_scalar(v, n) for v, n in ((dt, "dt"), (duration, "duration"), (fps, "fps")))
+    element = DEFAULT_ELEMENT if element is None else element
+    n_steps = int(round(duration / dt))
+    if n_steps < 1:
+        raise InputError(f"duration {duration:g} s is shorter than one step of dt {dt:g} s")
+    every = max(1, int(round(1.0 / (fps * dt))))
+    model, verts = scene.model, scene.rest_vertices
+    g = (0.0, 0.0, -GRAVITY) if gravity else (0.0, 0.0, 0.0)
+    obstacles = obstacles_from(ground, sphere, box)
+    if method == "xpbd":
+        unsupported = [name for name, on in (
+            ("gust", gust is not None), ("impulse", bool(len(impulses))), ("ground", ground is not None),
+            ("sphere", sphere is not None), ("box", box is not None), ("rayleigh", any(rayleigh)),
+            ("beta/gamma/hht-alpha", newmark != NewmarkOptions())) if on]
+        if unsupported:
+            raise InputError(f"method 'xpbd' supports gravity and fixed nodes only, not {', '.join(unsupported)}")
+        integ = make_integrator("xpbd", model, dt, fixed_nodes=scene.fixed, gravity=g, substeps=xpbd.substeps,
+                                iterations=xpbd.iterations, constraints=xpbd.constraints, damping=xpbd.damping)
+    else:
+        loads = [Gravity(g)] if gravity else []
+        if gust is not None:
+            fx, fy, fz, secs = (float(x) for x in gust)
+            if not secs > 0:
+                raise InputError(f"gust duration must be > 0 s, got {secs:g}")
+            loads.append(VertexForce(np.arange(len(verts)), np.array([fx, fy, fz]) / len(verts), half_sine(secs)))
+        loadset = LoadSet(model, loads, points=verts, faces=scene.faces, W=scene.W)
+        contact = Contact(model, verts, obstacles, W=scene.W) if obstacles else None
+        kw = {"fixed_nodes": scene.fixed, "loads": loadset, "contact": contact, "rayleigh": tuple(rayleigh),
+              "element": element}
+        if method != "central":
+            kw.update(beta=newmark.beta, gamma=newmark.gamma, alpha=newmark.alpha)
+        elif newmark != NewmarkOptions():
+            raise InputError("beta, gamma and the HHT alpha apply to the implicit methods, not to 'central'")
+        integ = make_integrator(method, model, dt, **kw)
+        J = impulse_nodes(scene, impulses)
+        if J is not None:
+            integ.set_velocity_from_impulse(J)
+    rec = record(integ, n_steps, scene=scene, every=every, progress=progress, keep_u=False)
+    dtc = integ.dt_crit if method == "central" else None
+    warnings = []
+    if rec.energy_drift > ENERGY_GAIN_WARN and gust is None:
+        # only a gust does work after t = 0 (impulses act at t = 0, damping and contact take energy out)
+        warnings.append(f"the total energy grew by {100 * rec.energy_drift:.3g} % of the largest kinetic + elastic "
+                        "energy with nothing feeding it: the run is not converged"
+                        + (" (use more substeps)" if method == "xpbd" else " (reduce dt)"))
+    info = {"method": method, "dt": dt, "duration": duration, "n_steps": n_steps, "source": scene.source,
+            "element": element, "material": model.info.get("material", ""), "gravity": bool(gravity),
+            "ground": ground, "rayleigh": [float(x) for x in rayleigh], "hht_alpha": newmark.alpha,
+            "dt_crit": dtc, "scale": model.scale, "cubes": model.n_cubes, **rec.info,
+            "implicit": bool(integ.implicit), "warnings": warnings,
+            "contact_tol": None if getattr(integ, "contact", None) is None else float(integ.contact.tol)}
+    return replace(rec, info=info)

@@ -1,0 +1,185 @@
+"""External loads of a dynamic run, given on the source geometry and carried to the cube nodes.
+
+Every load ends up as lattice node forces ``(m, 3)`` in newtons:
+
+* :class:`Gravity` -- each node gets its lumped mass times ``g`` (m/s^2), as in
+  :func:`sc_fem.fem.static.solve_static`; it is the only load with a potential energy
+  (``-f_g . u``, reported in the energy of a run).
+* :class:`VertexForce` -- forces (N) on source-mesh vertices, mapped with ``W^T``
+  (:func:`sc_fem.lattice.embed.embed`), times a scalar time profile ``time(t)``.
+* :class:`FacePressure` -- a pressure (Pa) on source-mesh faces, acting against the face normal
+  of the rest geometry (``F = -p A n``, area in m^2 = model area x scale^2), split equally over
+  the face's 3 vertices and mapped with ``W^T``, times ``time(t)``.
+
+Loads act on the rest geometry (small-displacement assumption). The time profiles
+:func:`half_sine` (a gust) and :func:`step` are provided; any ``callable(t) -> float`` works.
+
+:class:`LoadSet` pre-computes the constant node-force pattern of every load once, so
+``LoadSet.force(t)`` costs one multiply-add per load and time step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from .._validate import as_float_array, as_points
+from ..errors import InputError
+from ..lattice.cubes import CubeModel
+
+Profile = Callable[[float], float]
+
+
+def _one(t: float) -> float:
+    return 1.0
+
+
+def half_sine(duration: float, start: float = 0.0) -> Profile:
+    """Gust profile: ``sin(pi (t - start) / duration)`` on ``[start, start + duration]``, else 0."""
+    if not duration > 0:
+        raise InputError(f"duration must be > 0 s, got {duration!r}")
+
+    def f(t: float) -> float:
+        s = (t - start) / duration
+        return float(np.sin(np.pi * s)) if 0.0 <= s <= 1.0 else 0.0
+
+    return f
+
+
+def step(start: float = 0.0) -> Profile:
+    """Step profile: 0 before ``start`` s, 1 from then on."""
+    return lambda t: 1.0 if t >= start else 0.0
+
+
+@dataclass(frozen=True)
+class Gravity:
+    """Uniform gravitational acceleration ``g`` (m/s^2), shape (3,)."""
+
+    g: tuple = (0.0, 0.0, -9.81)
+
+
+@dataclass(frozen=True, eq=False)
+class VertexForce:
+    """Forces on source-mesh vertices.
+
+    Attributes
+    ----------
+    vertices : array_like of int, shape (k,)
+        Vertex indices into the points given to :class:`LoadSet`.
+    force : array_like, shape (k, 3) or (3,)
+        Force per vertex, N (a (3,) force is applied to each vertex).
+    time : callable, optional
+        Scalar profile ``time(t)`` multiplying the force (default 1).
+    """
+
+    vertices: object
+    force: object
+    time: Profile | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class FacePressure:
+    """Pressure on source-mesh faces (positive pushes against the outward normal).
+
+    Attributes
+    ----------
+    faces : array_like of int, shape (k,)
+        Face indices into the faces given to :class:`LoadSet`.
+    pressure : float or array_like (k,)
+        Pa.
+    time : callable, optional
+        Scalar profile (default 1).
+    """
+
+    faces: object
+    pressure: object
+    time: Profile | None = None
+
+
+class LoadSet:
+    """The loads of a run as node forces.
+
+    Parameters
+    ----------
+    model : CubeModel
+    loads : sequence of Gravity / VertexForce / FacePressure
+    points : array_like, shape (n, 3), optional
+        Source-mesh vertices, model units (needed by vertex forces and pressures).
+    faces : array_like of int, shape (f, 3), optional
+        Source-mesh triangles (needed by pressures).
+    W : scipy.sparse matrix, shape (n, m), optional
+        Embedding of ``points`` (computed with :func:`sc_fem.lattice.embed.embed` if not given).
+
+    Attributes
+    ----------
+    gravity_force : ndarray, shape (m, 3)
+        Constant node forces of gravity, N.
+    """
+
+    def __init__(self, model: CubeModel, loads: Sequence = (), *, points=None, faces=None, W=None) -> None:
+        m = model.n_nodes
+        self.model = model
+        self.gravity_force = np.zeros((m, 3))
+        self._timed: list[tuple[np.ndarray, Profile]] = []
+        pts = None if points is None else as_points(points, "points")
+        if W is None and pts is not None:
+            from ..lattice.embed import embed
+
+            W = embed(model, pts)
+        self.W = None if W is None else sp.csr_matrix(W)
+        if self.W is not None and pts is not None and self.W.shape != (len(pts), m):
+            raise InputError(f"W must have shape ({len(pts)}, {m}), got {self.W.shape}")
+        for ld in loads:                                    # loop over a handful of loads
+            if isinstance(ld, Gravity):
+                g = as_float_array(ld.g, "gravity", (3,))
+                self.gravity_force = self.gravity_force + model.node_masses()[:, None] * g[None, :]
+            elif isinstance(ld, VertexForce):
+                self._need(pts, "VertexForce")
+                idx = self._indices(ld.vertices, len(pts), "vertices")
+                f = np.broadcast_to(as_float_array(ld.force, "force"), (len(idx), 3)) if \
+                    np.ndim(ld.force) == 1 else as_float_array(ld.force, "force", (len(idx), 3))
+                # W^T of the vertex forces: only the rows of the loaded vertices (repeats add up)
+                self._timed.append((np.asarray(self.W[idx].T @ f), ld.time or _one))
+            elif isinstance(ld, FacePressure):
+                self._need(pts, "FacePressure")
+                if faces is None:
+                    raise InputError("FacePressure needs faces= (the source-mesh triangles)")
+                tri = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+                fidx = self._indices(ld.faces, len(tri), "faces")
+                p = np.broadcast_to(np.asarray(ld.pressure, dtype=float), (len(fidx),))
+                v = pts[tri[fidx]]                                        # (k, 3, 3)
+                an = 0.5 * np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]) * model.scale**2   # area * n, m^2
+                fv = np.repeat((-p[:, None] * an / 3.0), 3, axis=0)        # (3k, 3), per face corner
+                self._timed.append((np.asarray(self.W[tri[fidx].ravel()].T @ fv), ld.time or _one))
+            else:
+                raise InputError(f"unknown load {ld!r}: use Gravity, VertexForce or FacePressure")
+
+    @staticmethod
+    def _need(pts, what: str) -> None:
+        if pts is None:
+            raise InputError(f"{what} needs points= (the source-mesh vertices, model units)")
+
+    @staticmethod
+    def _indices(idx, n: int, name: str) -> np.ndarray:
+        a = np.atleast_1d(np.asarray(idx))
+        if a.ndim != 1 or a.size == 0 or not np.issubdtype(a.dtype, np.integer):
+            raise InputError(f"{name} must be a non-empty 1-D integer array, got {a.dtype} {a.shape}")
+        if a.min() < 0 or a.max() >= n:
+            raise InputError(f"{name} indices must lie in [0, {n}), got range [{a.min()}, {a.max()}]")
+        return a.astype(np.int64)
+
+    def force(self, t: float) -> np.ndarray:
+        """Total node forces at time ``t`` (s), shape (m, 3), N."""
+        f = self.gravity_force.copy()
+        for pattern, prof in self._timed:                  # loop over loads
+            s = float(prof(t))
+            if s:
+                f += s * pattern
+        return f
+
+    def gravity_potential(self, u: np.ndarray) -> float:
+        """Potential energy of gravity relative to the rest state, ``-f_g . u`` (J); ``u`` (m, 3) m."""
+        return -float(np.sum(self.gravity_force * u))

@@ -1,0 +1,238 @@
+"""Linear static equilibrium ``K u = f`` of a cube lattice with fixed nodes.
+
+Loads (all in newtons or m/s^2, summed): node forces ``(m, 3)``, gravity ``(3,)`` (each node
+gets its lumped mass times ``g``; for a uniform field this equals the consistent load), and
+forces on arbitrary points such as source-mesh vertices, mapped to the nodes with ``W^T``
+(:func:`sc_fem.lattice.embed.embed`). Fixed nodes are condensed out (``K`` stays symmetric) and the
+reduced system is factorized with :func:`sc_fem.fem.linsolve.factorize`.
+
+A part of the model that is not held (no fixed node, or fixed nodes that leave a rigid motion
+free, e.g. one node or nodes on one line) and carries load raises
+:class:`~sc_fem.errors.SolverError` before any factorization; an unloaded floating part (debris)
+is held at zero displacement and counted in :attr:`StaticResult.n_floating_nodes`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from .._validate import as_float_array, as_points
+from .assemble import Assembler
+from .boundary import fixed_dofs, fixed_nodes
+from .eigen import rigid_block
+from .elements import DEFAULT_ELEMENT, check_element
+from ..errors import BoundaryConditionError, InputError, SolverError
+from ..lattice.cubes import CubeModel
+from .linsolve import factorize
+
+
+@dataclass(frozen=True, eq=False)
+class StaticResult:
+    """Result of :func:`solve_static`.
+
+    Attributes
+    ----------
+    displacements : ndarray, shape (m, 3)
+        Node displacements, m.
+    vertex_displacements : ndarray, shape (k, 3) or None
+        Displacements of the given points / source-mesh vertices, m.
+    forces : ndarray, shape (m, 3)
+        Total applied node forces, N (before condensation).
+    fixed_nodes : ndarray of int, shape (f,)
+        Nodes held fixed by the boundary conditions.
+    n_floating_nodes : int
+        Nodes of unloaded, unsupported parts held at zero.
+    element : str
+        Element type used.
+    backend : str
+        Linear-solver backend.
+    residual : float
+        ``||K u - f|| / ||f||`` on the free DOFs.
+    timings : dict
+        Wall seconds of ``"assemble"``, ``"factorize"``, ``"solve"``.
+    """
+
+    displacements: np.ndarray
+    vertex_displacements: np.ndarray | None
+    forces: np.ndarray
+    fixed_nodes: np.ndarray
+    n_floating_nodes: int
+    element: str
+    backend: str
+    residual: float
+    timings: dict = field(default_factory=dict)
+
+    @property
+    def compliance(self) -> float:
+        """Work of the applied loads ``f . u`` (J); twice the strain energy."""
+        return float(np.sum(self.forces * self.displacements))
+
+    @property
+    def max_displacement(self) -> float:
+        """Largest node displacement magnitude, m."""
+        return float(np.linalg.norm(self.displacements, axis=1).max())
+
+
+def node_parts(model: CubeModel) -> np.ndarray:
+    """Label of each node's part (nodes connected through shared cubes, even at one node), shape (m,)."""
+    h = model.hexes
+    rows = np.repeat(h[:, 0], 7)
+    cols = h[:, 1:].ravel()
+    g = sp.coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(model.n_nodes,) * 2)
+    return connected_components(g, directed=False)[1]
+
+
+def held_parts(model: CubeModel, labels: np.ndarray, fixed: np.ndarray, n_parts: int) -> np.ndarray:
+    """Per part (``labels`` from :func:`node_parts`): do the fixed nodes suppress all 6 rigid motions?
+    shape (n_parts,) bool (a part fixed at one node, or along one line, is not held)."""
+    if len(fixed) == 0:
+        return np.zeros(n_parts, dtype=bool)
+    lab = labels[fixed]
+    p = model.nodes[fixed] / model.pitch
+    cnt = np.bincount(lab, minlength=n_parts)
+    cen = np.stack([np.bincount(lab, p[:, k], minlength=n_parts) for k in range(3)], 1) / np.maximum(cnt, 1)[:, None]
+    q = p - cen[lab]
+    # 3x6 block [I, -[q]x] of the rigid modes at each fixed node; G = sum B^T B per part
+    B = rigid_block(q)
+    BtB = np.einsum("nki,nkj->nij", B, B).reshape(len(q), 36)
+    G = np.stack([np.bincount(lab, BtB[:, k], minlength=n_parts) for k in range(36)], 1).reshape(n_parts, 6, 6)
+    ev = np.linalg.eigvalsh(G)
+    return ev[:, 0] > 1e-9 * np.maximum(ev[:, -1], 1e-300)
+
+
+def solve_static(model, *, element: str = DEFAULT_ELEMENT, fix=None, fix_vertices=None,
+                 forces=None, gravity=None, point_forces=None, points=None, mesh=None,
+                 backend: str = "auto") -> StaticResult:
+    """Static displacement of a cube lattice under load.
+
+    Parameters
+    ----------
+    model : CubeModel or Scene
+        The lattice, or a :class:`~sc_fem.Scene` (then its fixed nodes and source mesh are used and
+        ``fix``, ``fix_vertices``, ``points`` and ``mesh`` are not given).
+    element : {"q1i", "q1", "q1sri"}
+        Element type (default ``"q1i"``).
+    fix : str, FixSpec, callable or list of them, optional
+        Fixed nodes (see :func:`sc_fem.fem.boundary.fixed_nodes`), e.g. ``["x<0.01"]``.
+    fix_vertices : array_like of int, optional
+        Indices of source-mesh vertices (of ``mesh``, or of ``points``) whose cubes are fixed.
+    forces : array_like, shape (m, 3), optional
+        Forces on the lattice nodes, N.
+    gravity : array_like, shape (3,), optional
+        Gravitational acceleration, m/s^2 (e.g. ``(0, 0, -9.81)``); uses ``model.mass``.
+    point_forces : array_like, shape (k, 3), optional
+        Forces on ``points`` (or on the vertices of ``mesh``), N; mapped with ``W^T``.
+    points : array_like, shape (k, 3), optional
+        Points in model units (e.g. source-mesh vertices); their displacements are returned.
+    mesh : trimesh.Trimesh or anything :func:`sc_fem.load_mesh` accepts, optional
+        Source mesh; its vertices are used as ``points`` when ``points`` is not given.
+    backend : {"auto", "cholmod", "cholespy", "splu"}
+        Sparse factorization backend.
+
+    Returns
+    -------
+    StaticResult
+
+    Raises
+    ------
+    SolverError
+        A loaded part of the model is not held in place (floating), or the factorization fails.
+    BoundaryConditionError
+        A fix spec selects no node or cannot be parsed.
+    """
+    from ..scene import Scene
+
+    scene = None
+    if isinstance(model, Scene):
+        given = [k for k, v in (("fix", fix), ("fix_vertices", fix_vertices), ("points", points), ("mesh", mesh))
+                 if v is not None]
+        if given:
+            raise InputError(f"a Scene already has its fixed nodes and mesh: do not pass {', '.join(given)}")
+        scene, model = model, model.model
+    if not isinstance(model, CubeModel):
+        raise InputError(f"model must be a CubeModel or a Scene, got {type(model).__name__}")
+    element = check_element(element)
+    m = model.n_nodes
+    if points is None and mesh is not None:
+        from ..geometry.mesh import load_mesh
+
+        points = np.asarray(load_mesh(mesh).vertices, dtype=float)
+    pts = None if points is None else as_points(points, "points")
+    if scene is not None:
+        pts = scene.rest_vertices
+
+    f = np.zeros((m, 3))
+    if forces is not None:
+        f += as_float_array(forces, "forces", (m, 3))
+    if gravity is not None:
+        g = as_float_array(gravity, "gravity", (3,))
+        f += model.node_masses()[:, None] * g[None, :]
+    W = emb = None
+    if scene is not None:
+        emb = scene.embedding
+        W = emb.W
+    elif pts is not None:
+        from ..lattice.embed import embedding
+
+        emb = embedding(model, pts)
+        W = emb.W
+    if point_forces is not None:
+        if pts is None:
+            raise InputError("point_forces needs points= (or mesh=) to say where the forces act")
+        pf = as_float_array(point_forces, "point_forces", (len(pts), 3))
+        f += W.T @ pf
+
+    if fix_vertices is not None and pts is None:
+        raise BoundaryConditionError("fix_vertices needs mesh= or points= (the vertex positions)")
+    fixed = scene.fixed if scene is not None else fixed_nodes(model, fix, vertices=fix_vertices, mesh_embedding=emb)
+
+    # parts that are not held: error if loaded, pin if unloaded
+    labels = node_parts(model)
+    n_parts = int(labels.max()) + 1
+    held = held_parts(model, labels, fixed, n_parts)
+    load = np.bincount(labels, np.abs(f).sum(axis=1), minlength=n_parts)
+    scale = max(np.abs(f).sum(), 1e-300)
+    loaded = load > 1e-12 * scale
+    bad = ~held & loaded
+    if np.any(bad):
+        part = int(np.flatnonzero(bad)[0])
+        n_cubes_part = int(np.count_nonzero(labels[model.hexes[:, 0]] == part))
+        n_fix = int(np.count_nonzero(labels[fixed] == part))
+        how = "has no fixed node" if n_fix == 0 else \
+            f"has {n_fix} fixed node(s) that leave a rigid motion free (a single node or nodes on one line)"
+        raise SolverError(
+            f"the model is floating under load: a part of {n_cubes_part} cube(s) carrying "
+            f"{load[part]:.4g} N of load {how}, so it can move as a rigid body and K u = f has no "
+            f"solution. Fix nodes with fix=['x<...'] / --fix 'z<min+0.01' or fix_vertices=.")
+    floating = np.flatnonzero(~held[labels] & ~np.isin(np.arange(m), fixed))
+    t = {}
+    if np.all(f == 0):
+        u = np.zeros((m, 3))
+        t.update(assemble=0.0, factorize=0.0, solve=0.0)
+        return StaticResult(u, None if W is None else np.asarray(W @ u), f, fixed, len(floating),
+                            element, "none", 0.0, t)
+    all_fixed = np.union1d(fixed, floating)
+    t0 = time.perf_counter()
+    asm = Assembler(model, element, fixed_dofs=fixed_dofs(all_fixed))
+    K = asm.stiffness()
+    t["assemble"] = time.perf_counter() - t0
+    if K.shape[0] == 0:
+        raise BoundaryConditionError("every node is fixed: nothing to solve")
+    fac = factorize(K, backend)
+    t["factorize"] = fac.seconds
+    t0 = time.perf_counter()
+    b = asm.restrict(f)
+    x = fac.solve(b)
+    t["solve"] = time.perf_counter() - t0
+    res = float(np.linalg.norm(K @ x - b) / max(np.linalg.norm(b), 1e-300))
+    if not res < 1e-6:
+        raise SolverError(f"the static solve did not converge (relative residual {res:.3g}); the stiffness "
+                          "matrix is nearly singular -- is the model held in place?")
+    u = asm.expand(x)
+    vu = None if W is None else np.asarray(W @ u)
+    return StaticResult(u, vu, f, fixed, len(floating), element, fac.backend, res, t)

@@ -1,0 +1,50 @@
+"""Reading sc_fem's versioned ``.npz`` files (models, modes, animations) with one set of checks."""
+
+from __future__ import annotations
+
+import zipfile
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ModeFileError
+
+
+def read_versioned_npz(path, *, kind: str, version: int, what: str) -> dict[str, np.ndarray]:
+    """All arrays of ``path`` after checking it exists, unzips, and has the right kind and version.
+
+    Parameters
+    ----------
+    path : str or Path
+    kind : str
+        Expected value of the ``kind`` key (e.g. ``"sc_fem.modes"``).
+    version : int
+        Expected ``format_version``.
+    what : str
+        Human name of the file type for messages (``"mode file"``, ...).
+
+    Raises
+    ------
+    ModeFileError
+        Missing, truncated, corrupted, foreign (other ``kind``) or wrong-version file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ModeFileError(f"{what} not found: {path}")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            data = {k: z[k] for k in z.files}
+    except (zipfile.BadZipFile, zlib.error, ValueError, OSError, EOFError, KeyError) as exc:
+        raise ModeFileError(f"{path} is not a readable .npz {what} (truncated or corrupted?): "
+                            f"{type(exc).__name__}: {exc}") from None
+    found = str(data["kind"]) if "kind" in data and data["kind"].shape == () else None
+    if found != kind:
+        raise ModeFileError(f"{path} is not an sc_fem {what} (kind={found!r}; keys {sorted(data)[:8]})")
+    try:
+        got = int(data["format_version"])
+    except (KeyError, TypeError, ValueError):
+        got = -1
+    if got != version:
+        raise ModeFileError(f"{path}: unsupported {what} format_version {got} (this sc_fem reads version {version})")
+    return data

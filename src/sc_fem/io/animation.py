@@ -1,0 +1,196 @@
+"""Vertex-animation files (``.npz``): what ``sc-fem simulate`` writes and ``sc-fem reconstruct`` reads.
+
+Schema (``format_version`` 1):
+
+=================  ===============  =====================================================
+key                shape / dtype    meaning
+=================  ===============  =====================================================
+format_version     () int           1
+kind               () str           ``"sc_fem.animation"``
+faces              (m, 3) int64     source-mesh triangles (may be (0, 3) for point sets)
+rest_vertices      (n, 3) float64   rest positions, model units
+times              (T,) float64     seconds, strictly increasing
+positions          (T, n, 3) f32    vertex positions per frame, model units
+energy             (T,) float64     kinetic + elastic + gravity potential, J (NaN if unknown)
+meta_json          () str           JSON dict: method, dt, material, source, ...
+curves (optional)  (T, C, P, 3) f8  curves on the surface (e.g. the XPBD rope's 24 x 832), model units
+=================  ===============  =====================================================
+
+Further optional arrays may be stored with ``save_animation(..., extra={...})``; readers ignore
+keys they do not know.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .._atomic import save_npz_atomic
+from ._npz import read_versioned_npz
+from .._validate import as_float_array
+from ..errors import InputError, ModeFileError
+
+ANIMATION_FORMAT_VERSION = 1
+ANIMATION_KIND = "sc_fem.animation"
+
+
+@dataclass(frozen=True, eq=False)
+class Animation:
+    """A vertex animation of a source mesh.
+
+    Attributes
+    ----------
+    faces : ndarray of int, shape (m, 3)
+    rest_vertices : ndarray, shape (n, 3)
+        Model units.
+    times : ndarray, shape (T,)
+        Seconds.
+    positions : ndarray, shape (T, n, 3)
+        Model units.
+    energy : ndarray, shape (T,)
+        Joules (NaN where not computed).
+    meta : dict
+        Free-form provenance (JSON-serialisable).
+    curves : ndarray, shape (T, C, P, 3), or None
+        Optional curves on the surface (model units), None if the file has none.
+    """
+
+    faces: np.ndarray
+    rest_vertices: np.ndarray
+    times: np.ndarray
+    positions: np.ndarray
+    energy: np.ndarray
+    meta: dict = field(default_factory=dict)
+    curves: np.ndarray | None = None
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.times)
+
+
+def _check(faces, rest, times, positions, energy) -> None:
+    n = len(rest)
+    if positions.ndim != 3 or positions.shape[1:] != (n, 3):
+        raise InputError(f"positions must have shape (T, {n}, 3), got {positions.shape}")
+    if times.shape != (positions.shape[0],):
+        raise InputError(f"times must have shape ({positions.shape[0]},), got {times.shape}")
+    if len(times) > 1 and np.any(np.diff(times) <= 0):
+        raise InputError("times must be strictly increasing")
+    if energy.shape != times.shape:
+        raise InputError(f"energy must have shape {times.shape}, got {energy.shape}")
+    if faces.size and (faces.min() < 0 or faces.max() >= n):
+        raise InputError("faces index vertices that do not exist")
+
+
+_RESERVED = {"format_version", "kind", "faces", "rest_vertices", "times", "positions", "energy", "meta_json"}
+
+
+def save_animation(path, *, faces, rest_vertices, times, positions, energy=None, meta=None,
+                   extra: dict | None = None) -> Path:
+    """Write an animation ``.npz`` atomically (temp file + rename); returns the path.
+
+    ``extra`` holds further named arrays (e.g. ``curves`` of shape (T, C, P, 3)).
+    """
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    rest = as_float_array(rest_vertices, "rest_vertices", (-1, 3))
+    times = as_float_array(times, "times", (-1,))
+    positions = as_float_array(positions, "positions", (-1, -1, 3))
+    energy = np.full(times.shape, np.nan) if energy is None else np.asarray(energy, dtype=float)
+    _check(faces, rest, times, positions, energy)
+    extra = dict(extra or {})
+    clash = _RESERVED & set(extra)
+    if clash:
+        raise InputError(f"extra arrays may not use the reserved keys {sorted(clash)}")
+    return save_npz_atomic(
+        path, format_version=np.int64(ANIMATION_FORMAT_VERSION), kind=np.str_(ANIMATION_KIND),
+        faces=faces, rest_vertices=rest, times=times, positions=positions.astype(np.float32),
+        energy=energy, meta_json=np.str_(json.dumps(meta or {}, default=str)),
+        **{k: np.asarray(v) for k, v in extra.items()},
+    )
+
+
+def load_animation(path) -> Animation:
+    """Read and validate an animation ``.npz``.
+
+    Raises
+    ------
+    ModeFileError
+        Missing, truncated, corrupted, foreign (not an sc_fem animation) or wrong-version file,
+        or an optional ``curves`` array of the wrong shape or with non-finite values.
+    """
+    path = Path(path)
+    data = read_versioned_npz(path, kind=ANIMATION_KIND, version=ANIMATION_FORMAT_VERSION,
+                              what="animation file")
+    missing = {"faces", "rest_vertices", "times", "positions", "energy"} - set(data)
+    if missing:
+        raise ModeFileError(f"{path}: missing keys {sorted(missing)}")
+    faces, rest, times = data["faces"], data["rest_vertices"], data["times"]
+    positions, energy = data["positions"], data["energy"]
+    try:
+        _check(faces, rest, times, positions, energy)
+    except InputError as exc:
+        raise ModeFileError(f"{path}: {exc}") from None
+    if not (np.all(np.isfinite(positions)) and np.all(np.isfinite(rest)) and np.all(np.isfinite(times))):
+        raise ModeFileError(f"{path}: non-finite positions, rest vertices or times")
+    curves = None
+    if "curves" in data:
+        curves = data["curves"]
+        if (curves.ndim != 4 or curves.shape[0] != len(times) or curves.shape[-1] != 3
+                or not np.issubdtype(curves.dtype, np.number)):
+            raise ModeFileError(f"{path}: curves must have shape ({len(times)}, C, P, 3), got "
+                                f"{curves.dtype} {curves.shape}")
+        curves = curves.astype(np.float64, copy=False)
+        if not np.all(np.isfinite(curves)):
+            raise ModeFileError(f"{path}: curves contain {int(np.count_nonzero(~np.isfinite(curves)))} "
+                                "non-finite value(s)")
+    meta = json.loads(str(data.get("meta_json", "{}")))
+    return Animation(faces=faces, rest_vertices=rest, times=times, positions=positions,
+                     energy=energy, meta=meta, curves=curves)
+
+
+ANIMATION_OUTPUTS = (".npz", ".xdmf", ".mp4", ".gif")
+"""Extensions :func:`write_animation` writes."""
+
+
+def write_xdmf(path, rest: np.ndarray, faces: np.ndarray, times, positions) -> Path:
+    """XDMF time series (XML data, no HDF5 needed): the rest mesh and point data ``displacement``
+    (model units) per time; written atomically."""
+    import meshio
+
+    from .._atomic import atomic_path
+
+    path = Path(path)
+    cells = [("triangle", np.asarray(faces, dtype=np.int64))] if len(faces) else \
+        [("vertex", np.arange(len(rest), dtype=np.int64)[:, None])]
+    with atomic_path(path, suffix=".xdmf") as tmp:
+        with meshio.xdmf.TimeSeriesWriter(str(tmp), data_format="XML") as w:
+            w.write_points_cells(np.asarray(rest, dtype=float), cells)
+            for t, p in zip(times, positions):         # loop over frames
+                w.write_data(float(t), point_data={"displacement": np.asarray(p, dtype=float) - rest})
+    return path
+
+
+def write_animation(path, scene, rec, *, exaggerate: float = 1.0, fps: float = 50.0, title: str = "",
+                    progress: bool = False) -> Path:
+    """Write a recorded run of ``scene`` by the extension of ``path``: ``.npz`` (:func:`save_animation`,
+    with ``rec.info`` as its record), ``.xdmf`` (ParaView time series), ``.mp4`` / ``.gif`` (rendered,
+    displacements times ``exaggerate``)."""
+    path = Path(path)
+    kind = path.suffix.lower()
+    if kind not in ANIMATION_OUTPUTS:
+        raise InputError(f"unsupported output {path.name!r}: use {', '.join(ANIMATION_OUTPUTS)}")
+    rest, faces = scene.rest_vertices, scene.faces
+    if kind == ".npz":
+        meta = {k: v for k, v in rec.info.items() if k != "warnings"}
+        return save_animation(path, faces=faces, rest_vertices=rest, times=rec.times, positions=rec.points,
+                              energy=rec.energy, meta=meta)
+    if kind == ".xdmf":
+        return write_xdmf(path, rest, faces, rec.times, rec.points)
+    from .render import render_animation
+
+    frames = rest[None] + exaggerate * (rec.points - rest[None])
+    title = title or f"{scene.source} {rec.method}" + (f" (x{exaggerate:g})" if exaggerate != 1 else "")
+    return render_animation(frames, faces, path, fps=min(fps, 30.0), title=title, progress=progress)

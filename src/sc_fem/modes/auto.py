@@ -1,0 +1,77 @@
+"""``resolution="auto"``: the coarsest grid whose first frequencies agree with the next finer grid.
+
+A model no bigger than the scene needs: grids are solved coarsest first, only the last two are
+kept in memory, and only the chosen one is baked; the table the choice was made from is returned
+in :attr:`sc_fem.ModalBasis.resolution_table`.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from .._validate import positive_scalar
+from ..errors import InputError
+from .modal import AUTO_RESOLUTIONS, ModalBasis, _log, finish, solve_scene
+
+
+def modal_auto(mesh, *, tolerance, resolutions, vopts, timings, fix, fix_vertices, kw: dict) -> ModalBasis:
+    """``resolution="auto"``: solve grid after grid, keeping only the last two; bake the chosen one.
+
+    ``kw`` are the eigen and damping options of :func:`sc_fem.modal`."""
+    from ..scene import Scene
+
+    tol = positive_scalar(tolerance, "tolerance")
+    if "pitch" in vopts and vopts["pitch"] is not None:
+        raise InputError("resolution='auto' chooses the grid; do not pass pitch=")
+    vopts = {k: v for k, v in vopts.items() if k != "pitch"}
+    grids = sorted({int(r) for r in (AUTO_RESOLUTIONS if resolutions is None else resolutions)})
+    if len(grids) < 2 or grids[0] < 1:
+        raise InputError(f"resolution='auto' needs at least two positive resolutions, got {grids}")
+    table: list[dict] = []
+    prev = cur = None                                             # solutions of the last two grids
+    for r in grids:                                               # loop over grids (a handful)
+        t0 = time.perf_counter()
+        scene = Scene.from_mesh(mesh, resolution=r, fix=fix, fix_vertices=fix_vertices, **vopts)
+        lattice = scene.model
+        t_vox = time.perf_counter() - t0
+        _log(f"[auto] resolution {r}: {lattice.n_cubes} cubes, {lattice.n_dofs} DOFs", kw["progress"])
+        prev, cur = cur, None                                     # drop the grid before prev first
+        cur = solve_scene(scene, **kw)
+        cur.timings["voxelize"] = t_vox
+        el = cur.elastic_frequencies
+        table.append({"resolution": r, "cubes": lattice.n_cubes, "dofs": lattice.n_dofs,
+                      "seconds": time.perf_counter() - t0, "frequencies": el.tolist(),
+                      "max_rel_change": None, "chosen": False})
+        if prev is not None:
+            fp = prev.elastic_frequencies
+            kk = min(len(fp), len(el))
+            if kw["n_modes"] is not None:
+                kk = min(kk, kw["n_modes"])
+            change = float(np.max(np.abs(fp[:kk] - el[:kk]) / np.maximum(el[:kk], 1e-300))) if kk else np.inf
+            table[-2]["max_rel_change"] = change
+            if change <= tol:
+                break
+    converged = table[-2]["max_rel_change"] is not None and table[-2]["max_rel_change"] <= tol
+    chosen = prev if converged else cur
+    table[-2 if converged else -1]["chosen"] = True
+    for row in table:
+        row["converged"] = converged
+    chosen.info.update(auto_tolerance=tol, auto_converged=converged)
+    return finish(chosen, kw, timings, resolution_table=table)
+
+
+def format_resolution_table(table: list[dict], n_show: int = 4) -> str:
+    """The ``resolution="auto"`` table as text (one row per grid)."""
+    lines = [f"  {'res':>4} {'cubes':>8} {'DOFs':>9} {'time [s]':>9}  {'first frequencies [Hz]':<40} "
+             f"{'max change':>10}"]
+    for r in table:
+        f = ", ".join(f"{x:.4g}" for x in r["frequencies"][:n_show])
+        ch = "" if r["max_rel_change"] is None else f"{100 * r['max_rel_change']:.2f} %"
+        mark = "  <- chosen" if r["chosen"] else ""
+        lines.append(f"  {r['resolution']:>4} {r['cubes']:>8,} {r['dofs']:>9,} {r['seconds']:>9.2f}  {f:<40} "
+                     f"{ch:>10}{mark}")
+    if table and not table[0].get("converged", True):
+        lines.append("  (not converged within the tolerance: the finest grid tried is used)")
+    return "\n".join(lines)

@@ -1,0 +1,477 @@
+"""Modal analysis of a cube lattice, baked onto the source mesh: :func:`modal` -> :class:`ModalBasis`.
+
+The generalized eigenproblem ``K phi = omega^2 M phi`` (consistent mass by default) is solved by
+:func:`sc_fem.fem.eigen.solve_eigen` (shift-invert with a negative shift through the Cholesky
+backend, or LOBPCG + AMG when a factorization would not fit). Modes are mass-normalized
+(``phi^T M phi = 1``), frequencies are in Hz, and the relative residual
+``||K phi - omega^2 M phi|| / ||K phi||`` of every mode is reported.
+
+Rigid-body modes (6 per unsupported connected part) are recognised by their frequency
+(``omega^2 < RIGID_FRACTION * mean(diag K) / mean(diag M)``, i.e. numerically zero next to the
+stiffest element) and removed unless ``keep_rigid=True`` (then flagged in ``ModalBasis.rigid``).
+
+The modes are then *baked*: with the trilinear embedding ``W`` (:func:`sc_fem.lattice.embed.embed`),
+each mode on the source mesh is ``W @ phi`` -- an ``(n_vertices, 3)`` array -- and the lattice is
+thrown away unless ``keep_lattice=True``.
+
+Units: a mode value is a displacement in metres per unit modal coordinate (m kg^-1/2), so a
+modal coordinate ``q`` (m kg^1/2) gives the displacement ``sum_k q_k phi_k`` in metres; an
+impulse ``J`` (N s) on a vertex ``v`` gives the modal velocity ``phi_k(v) . J``.
+
+Damping (stored per mode as a ratio ``zeta_k``): ``damping_ratio=zeta`` (one value or one per
+mode, default :data:`DEFAULT_DAMPING_RATIO`) or ``rayleigh=(alpha, beta)``
+(``C = alpha M + beta K``, i.e. ``zeta_k = alpha / (2 omega_k) + beta omega_k / 2``).
+
+*A model no bigger than the scene needs*: ``n_modes=K``, ``max_frequency=F`` (all modes below
+``F`` Hz, e.g. half the playback frame rate -- faster modes only alias), and
+``resolution="auto"``: the coarsest grid of ``resolutions`` whose first ``K`` frequencies agree
+with those of the next finer grid within ``tolerance`` (relative); the table it decided from is
+in :attr:`ModalBasis.resolution_table`.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .._validate import positive_int, positive_scalar
+from ..fem.elements import DEFAULT_ELEMENT, check_element
+from ..errors import InputError
+from ..lattice.cubes import CubeModel
+
+DEFAULT_N_MODES = 10
+"""Modes computed when neither ``n_modes`` nor ``max_frequency`` is given."""
+
+DEFAULT_DAMPING_RATIO = 0.01
+"""Damping ratio of every mode when no damping is given (1 % of critical)."""
+
+RIGID_FRACTION = 1e-10
+"""A mode is rigid when ``omega^2 < RIGID_FRACTION * lambda_scale`` (``lambda_scale`` =
+``mean(diag K) / mean(diag M)``, the order of the highest eigenvalue). Rigid modes come out at
+about ``1e-17 .. 1e-16 * lambda_scale`` (round-off); the first elastic (bending) mode of a free
+200 x 1 x 1-cube rod (q1i), a very floppy voxel model, is at ``4.6e-9 * lambda_scale`` -- 46x above
+the threshold (measured with ``solve_eigen`` on ``CubeModel.box((200, 1, 1), ...)``)."""
+
+AUTO_RESOLUTIONS: tuple[int, ...] = (12, 16, 24, 32, 48, 64)
+"""Grids tried by ``resolution="auto"`` (cubes along the longest axis), coarsest first."""
+
+DEFAULT_RESOLUTION_TOLERANCE = 0.05
+"""Relative frequency agreement that ``resolution="auto"`` asks for by default."""
+
+
+@dataclass(frozen=True, eq=False)
+class ModalBasis:
+    """Mass-normalized vibration modes baked onto a mesh.
+
+    Attributes
+    ----------
+    frequencies : ndarray, shape (k,)
+        Natural frequencies, Hz, ascending (0 for rigid modes).
+    modes : ndarray, shape (k, n, 3)
+        Mode shapes at the ``vertices``: displacement in metres per unit modal coordinate
+        (m kg^-1/2); ``phi^T M phi = 1`` on the lattice.
+    vertices : ndarray, shape (n, 3)
+        Rest positions of the mesh the modes are baked on, model units.
+    faces : ndarray of int, shape (f, 3)
+        Triangles of that mesh ((0, 3) for a point set).
+    damping : ndarray, shape (k,)
+        Damping ratio ``zeta`` of each mode (0 for rigid modes).
+    damping_spec : dict
+        How ``damping`` was specified: ``{"kind": "ratio", "zeta": ...}`` or
+        ``{"kind": "rayleigh", "alpha": ..., "beta": ...}``.
+    rigid : ndarray of bool, shape (k,)
+        Which modes are rigid-body modes (frequency 0). All False unless ``keep_rigid=True``:
+        rigid modes are removed by default. Stored (not derived from ``frequencies == 0``) because
+        the mode file format has it.
+    residuals : ndarray, shape (k,)
+        ``||K phi - omega^2 M phi|| / ||K phi||`` of each mode (see :func:`sc_fem.fem.eigen.relative_residuals`).
+    n_rigid_removed : int
+        Rigid-body modes found and dropped.
+    scale : float
+        Metres per model unit (divide a displacement in metres by it to get model units).
+    pitch : float
+        Cube edge, model units.
+    resolution : int
+        Cubes along the longest axis of the lattice the modes were computed on.
+    element : str
+        Element type.
+    material : dict
+        ``name``, ``youngs`` / ``poisson`` / ``density`` (min and max over cubes), ``mass`` (kg).
+    fixed : dict
+        ``specs`` (the ``--fix`` specs), ``vertices`` (count of ``--fix-vertices``),
+        ``n_nodes`` (fixed lattice nodes).
+    source : str
+        Source model name / file name.
+    source_sha256 : str
+        Checksum of the source file (or of the arrays).
+    n_cubes, n_dofs : int
+        Size of the lattice problem.
+    eigen : dict
+        Solver report: ``method``, ``backend``, ``reason``, ``sigma``, ``seconds``, memory estimate.
+    timings : dict
+        Wall seconds per stage.
+    resolution_table : list of dict or None
+        ``resolution="auto"``: one row per grid tried (resolution, cubes, DOFs, seconds,
+        frequencies, max relative change to the next finer grid, chosen).
+    lattice : CubeModel or None
+        The lattice (``keep_lattice=True`` only).
+    node_modes : ndarray, shape (k, m, 3) or None
+        Modes at the lattice nodes, m kg^-1/2 (``keep_lattice=True`` only).
+    """
+
+    frequencies: np.ndarray
+    modes: np.ndarray
+    vertices: np.ndarray
+    faces: np.ndarray
+    damping: np.ndarray
+    damping_spec: dict
+    rigid: np.ndarray
+    residuals: np.ndarray
+    n_rigid_removed: int
+    scale: float
+    pitch: float
+    resolution: int
+    element: str
+    material: dict = field(default_factory=dict)
+    fixed: dict = field(default_factory=dict)
+    source: str = ""
+    source_sha256: str = ""
+    n_cubes: int = 0
+    n_dofs: int = 0
+    eigen: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
+    resolution_table: list | None = None
+    lattice: CubeModel | None = None
+    node_modes: np.ndarray | None = None
+
+    @property
+    def n_modes(self) -> int:
+        """Number of modes ``k``."""
+        return len(self.frequencies)
+
+    @property
+    def n_vertices(self) -> int:
+        """Number of vertices ``n``."""
+        return len(self.vertices)
+
+    @property
+    def omegas(self) -> np.ndarray:
+        """Angular frequencies ``2 pi f``, rad/s, shape (k,)."""
+        return 2.0 * np.pi * self.frequencies
+
+    def summary(self) -> str:
+        """A short text table: frequencies, damping ratios and residuals."""
+        rows = [f"  {'mode':>4}  {'f [Hz]':>12}  {'zeta':>8}  {'residual':>9}"]
+        for i in range(self.n_modes):
+            tag = "  rigid" if self.rigid[i] else ""
+            rows.append(f"  {i:>4}  {self.frequencies[i]:>12.5g}  {self.damping[i]:>8.4g}  "
+                        f"{self.residuals[i]:>9.2e}{tag}")
+        return "\n".join(rows)
+
+    def __repr__(self) -> str:
+        f = ", ".join(f"{x:.4g}" for x in self.frequencies[:6])
+        more = ", ..." if self.n_modes > 6 else ""
+        return (f"ModalBasis({self.n_modes} modes on {self.n_vertices} vertices, f = [{f}{more}] Hz, "
+                f"{self.n_cubes} cubes, element {self.element!r}, {self.n_rigid_removed} rigid removed)")
+
+
+# ---------------------------------------------------------------------------------------- helpers
+def damping_ratios(omegas: np.ndarray, *, damping_ratio=None, rayleigh=None) -> tuple[np.ndarray, dict]:
+    """Per-mode damping ratios, shape (k,), and the spec dict stored with them.
+
+    Parameters
+    ----------
+    omegas : ndarray, shape (k,)
+        Angular frequencies, rad/s (0 = rigid mode, which gets ``zeta = 0``).
+    damping_ratio : float or array_like (k,), optional
+        ``zeta`` per mode (>= 0).
+    rayleigh : (alpha, beta), optional
+        ``C = alpha M + beta K``: alpha in 1/s, beta in s.
+    """
+    omegas = np.asarray(omegas, dtype=float)
+    k = len(omegas)
+    if damping_ratio is not None and rayleigh is not None:
+        raise InputError("give damping_ratio or rayleigh, not both")
+    elastic = omegas > 0
+    if rayleigh is not None:
+        try:
+            alpha, beta = (float(x) for x in rayleigh)
+        except (TypeError, ValueError):
+            raise InputError(f"rayleigh must be a pair (alpha, beta), got {rayleigh!r}") from None
+        if not (np.isfinite(alpha) and np.isfinite(beta)) or alpha < 0 or beta < 0:
+            raise InputError(f"rayleigh coefficients must be finite and >= 0, got alpha={alpha}, beta={beta}")
+        zeta = np.zeros(k)
+        w = omegas[elastic]
+        zeta[elastic] = alpha / (2.0 * w) + beta * w / 2.0
+        return zeta, {"kind": "rayleigh", "alpha": alpha, "beta": beta}
+    z = DEFAULT_DAMPING_RATIO if damping_ratio is None else damping_ratio
+    arr = np.asarray(z, dtype=float)
+    if arr.ndim == 0:
+        arr = np.full(k, float(arr))
+    if arr.shape != (k,):
+        raise InputError(f"damping_ratio must be a scalar or have shape ({k},), got {arr.shape}")
+    if not np.all(np.isfinite(arr)) or np.any(arr < 0):
+        raise InputError("damping_ratio must be finite and >= 0")
+    arr = np.where(elastic, arr, 0.0)
+    spec = {"kind": "ratio", "zeta": float(z) if np.ndim(z) == 0 else arr.tolist()}
+    return arr, spec
+
+
+def _unsupported_parts(model: CubeModel, fixed: np.ndarray) -> int:
+    """Connected parts whose fixed nodes leave some rigid motion free (each may have up to 6)."""
+    from ..fem.static import held_parts, node_parts
+
+    labels = node_parts(model)
+    n_parts = int(labels.max()) + 1
+    return int(n_parts - held_parts(model, labels, fixed, n_parts).sum())
+
+
+def _log(msg: str, progress: bool) -> None:
+    if progress:
+        print(msg, file=sys.stderr, flush=True)
+
+
+@dataclass(frozen=True, eq=False)
+class _Solved:
+    """Eigenpairs of one lattice before baking (internal)."""
+
+    scene: Any                 # the Scene (model, mesh, fixed nodes)
+    lam: np.ndarray            # (k,) kept eigenvalues, 1/s^2
+    X: np.ndarray              # (n_free, k) kept eigenvectors
+    rigid: np.ndarray          # (k,) bool
+    res: np.ndarray            # (k,) relative residuals
+    n_removed: int
+    asm: Any                   # the Assembler (maps free DOFs to nodes)
+    info: dict
+    timings: dict
+
+    @property
+    def elastic_frequencies(self) -> np.ndarray:
+        """Frequencies of the kept elastic modes, Hz."""
+        return np.sqrt(np.maximum(self.lam[~self.rigid], 0.0)) / (2.0 * np.pi)
+
+
+def solve_scene(scene, *, n_modes, max_frequency, element, lumped, keep_rigid,
+                method, backend, max_modes, max_memory, progress, **_) -> _Solved:
+    """Eigenpairs of one lattice; the shifted operator is set up once however often ``k`` grows."""
+    from ..fem.assemble import Assembler
+    from ..fem.boundary import fixed_dofs
+    from ..fem.eigen import EigenSolver, rigid_body_modes
+
+    model, fixed = scene.model, scene.fixed
+    t = {}
+    t0 = time.perf_counter()
+    asm = Assembler(model, element, fixed_dofs=fixed_dofs(fixed))
+    K = asm.stiffness()
+    M = asm.mass(lumped=lumped)
+    t["assemble"] = time.perf_counter() - t0
+    n = K.shape[0]
+    if n == 0:
+        raise InputError("every node is fixed: no modes to compute")
+    n_rigid_expected = 6 * _unsupported_parts(model, fixed)
+    want = DEFAULT_N_MODES if (n_modes is None and max_frequency is None) else n_modes
+    lam_max = None if max_frequency is None else (2.0 * np.pi * max_frequency) ** 2
+    k_cap = min(n - 1, max_modes + n_rigid_expected + 6)
+    k = n_rigid_expected + (want if want is not None else 12)
+    t0 = time.perf_counter()
+    solver = EigenSolver(K, M, method=method, backend=backend,
+                         near_null=rigid_body_modes(model.nodes_m, asm.free_dofs), max_memory=max_memory)
+    scale = solver.lambda_scale
+    passes = 0
+    while True:                                                   # loop: grow k until enough modes
+        k = min(k, k_cap)
+        if k < 1:
+            raise InputError(f"the model has only {n} free DOFs: too few for a modal analysis")
+        eig = solver.solve(k)
+        passes += 1
+        lam = eig.eigenvalues
+        rigid = lam < RIGID_FRACTION * scale
+        n_el = int((~rigid).sum())
+        _log(f"  eigensolve: {k} pairs, {eig.method}/{eig.backend}, {n_el} elastic, "
+             f"top {np.sqrt(max(lam[-1], 0)) / 2 / np.pi:.4g} Hz", progress)
+        done = (want is not None and n_el >= want) or (lam_max is not None and lam[-1] >= lam_max)
+        if done or k >= k_cap:
+            break
+        k *= 2
+    t["eigensolve"] = time.perf_counter() - t0
+    sel = np.ones(len(lam), dtype=bool)
+    if lam_max is not None:
+        sel &= rigid | (lam < lam_max)
+    within = rigid | (np.cumsum(~rigid) <= (max_modes if want is None else min(want, max_modes)))
+    cut = bool(np.any(sel & ~within))                             # modes asked for beyond max_modes
+    sel &= within
+    if not keep_rigid:
+        sel &= ~rigid
+    if lam_max is not None and not np.any(sel & ~rigid):
+        first = np.sqrt(max(float(lam[~rigid][0]), 0.0)) / (2 * np.pi) if np.any(~rigid) else float("nan")
+        raise InputError(f"no elastic mode below max_frequency={max_frequency:g} Hz: the first one is at "
+                         f"{first:.4g} Hz; raise max_frequency or give n_modes")
+    info = {"method": eig.method, "backend": eig.backend, "reason": eig.reason, "sigma": eig.sigma,
+            "seconds": eig.seconds, "k_computed": int(len(lam)), "passes": passes, "setups": solver.n_setups,
+            "n_rigid_expected": n_rigid_expected, "n_rigid_found": int(rigid.sum()), "lambda_scale": scale,
+            **eig.info}
+    if cut or not done:
+        target = f"{max_frequency:g} Hz" if lam_max is not None else f"{want} elastic modes"
+        info["truncated"] = f"max_modes={max_modes} (or the model size) reached before {target}"
+    return _Solved(scene=scene, lam=lam[sel], X=eig.vectors[:, sel], rigid=rigid[sel],
+                   res=eig.residuals[sel], n_removed=0 if keep_rigid else int(rigid.sum()), asm=asm, info=info,
+                   timings=t)
+
+
+def _bake(asm, X: np.ndarray, W) -> tuple[np.ndarray, np.ndarray]:
+    """Node modes (k, m, 3) and vertex modes ``W @ phi`` (k, n, 3) from free-DOF vectors (n_free, k)."""
+    node = asm.expand(X)                                          # (m, 3, k)
+    m, _, k = node.shape
+    flat = node.reshape(m, 3 * k)
+    vert = np.asarray(W @ flat).reshape(-1, 3, k)
+    return np.ascontiguousarray(node.transpose(2, 0, 1)), np.ascontiguousarray(vert.transpose(2, 0, 1))
+
+
+def finish(s: _Solved, kw: dict, timings: dict, resolution_table: list | None = None) -> ModalBasis:
+    """Bake the modes of ``s`` onto its scene's source mesh (or the lattice nodes): the ModalBasis."""
+    scene = s.scene
+    model = scene.model
+    timings = {**timings, **s.timings}
+    t0 = time.perf_counter()
+    node_modes, vertex_modes = _bake(s.asm, s.X, scene.W)
+    timings["bake"] = time.perf_counter() - t0
+    omegas = np.where(s.rigid, 0.0, np.sqrt(np.maximum(s.lam, 0.0)))
+    zeta, spec = damping_ratios(omegas, damping_ratio=kw["damping_ratio"], rayleigh=kw["rayleigh"])
+    keep = kw["keep_lattice"]
+    return ModalBasis(
+        frequencies=omegas / (2.0 * np.pi), modes=vertex_modes, vertices=scene.rest_vertices, faces=scene.faces,
+        damping=zeta, damping_spec=spec, rigid=s.rigid, residuals=s.res, n_rigid_removed=s.n_removed,
+        scale=float(model.scale), pitch=float(model.pitch),
+        resolution=int(model.info.get("resolution", int(model.dims.max()))), element=kw["element"],
+        material=scene.material_record(), fixed=scene.fix_record(),
+        source=scene.source, source_sha256=scene.sha256, n_cubes=model.n_cubes, n_dofs=model.n_dofs, eigen=s.info,
+        timings=timings, resolution_table=resolution_table, lattice=model if keep else None,
+        node_modes=node_modes if keep else None)
+
+
+def modal(model: Any, *, n_modes: int | None = None, max_frequency: float | None = None, mesh: Any = None,
+          resolution: int | str | None = None, tolerance: float = DEFAULT_RESOLUTION_TOLERANCE,
+          resolutions=None, fix=None, fix_vertices=None, element: str = DEFAULT_ELEMENT, lumped: bool = False,
+          damping_ratio=None, rayleigh=None, keep_rigid: bool = False, keep_lattice: bool = False,
+          method: str = "auto", backend: str = "auto", max_modes: int = 200, max_memory: float | None = None,
+          voxelize_options: dict | None = None, progress: bool = False) -> ModalBasis:
+    """Vibration modes of a model, baked onto its source mesh.
+
+    Parameters
+    ----------
+    model : Scene, CubeModel or mesh-like
+        A :class:`~sc_fem.Scene` (mesh, lattice and fixed nodes together; then ``mesh``, ``fix``,
+        ``fix_vertices``, ``resolution`` and ``voxelize_options`` are not given), a lattice, or
+        anything :func:`sc_fem.load_mesh` accepts (then voxelized with ``resolution`` and
+        ``voxelize_options``).
+    n_modes : int, optional
+        Number of (elastic) modes. Default :data:`DEFAULT_N_MODES` unless ``max_frequency`` is given.
+    max_frequency : float, optional
+        Keep all modes below this frequency, Hz (at most ``n_modes`` when both are given, at most
+        ``max_modes`` in any case).
+    mesh : mesh-like, optional
+        Source mesh to bake onto when ``model`` is a :class:`CubeModel`; without it the modes are
+        given at the lattice nodes (``vertices = model.nodes``, no faces).
+    resolution : int or "auto", optional
+        Grid for a mesh-like ``model`` (cubes along the longest axis; default 32). ``"auto"``:
+        the coarsest of ``resolutions`` whose first ``n_modes`` frequencies (or those below
+        ``max_frequency``) agree with the next finer grid within ``tolerance``.
+    tolerance : float
+        Relative frequency tolerance of ``resolution="auto"``.
+    resolutions : sequence of int, optional
+        Grids tried by ``"auto"`` (default :data:`AUTO_RESOLUTIONS`).
+    fix : str, FixSpec, callable or list, optional
+        Fixed nodes (:func:`sc_fem.fem.boundary.fixed_nodes`), e.g. ``"z<min+0.01"``.
+    fix_vertices : array_like of int, optional
+        Source-mesh vertex indices whose cubes are fixed (needs a mesh).
+    element : {"q1i", "q1", "q1sri"}
+        Element type.
+    lumped : bool
+        Lumped instead of consistent mass.
+    damping_ratio : float or array_like (k,), optional
+        Modal damping ratio(s); default :data:`DEFAULT_DAMPING_RATIO`.
+    rayleigh : (alpha, beta), optional
+        Rayleigh damping ``C = alpha M + beta K`` instead of ``damping_ratio``.
+    keep_rigid : bool
+        Keep rigid-body modes (flagged in ``rigid``) instead of removing them.
+    keep_lattice : bool
+        Keep the lattice and the node modes in the result.
+    method : {"auto", "shift-invert", "lobpcg"}
+        Eigensolver (see :mod:`sc_fem.fem.eigen`); ``"auto"`` decides from a memory estimate.
+    backend : {"auto", "cholmod", "cholespy", "splu"}
+        Factorization backend for shift-invert.
+    max_modes : int
+        Upper limit on the elastic modes returned (``eigen["truncated"]`` says when it cut the
+        ``max_frequency`` or ``n_modes`` request short).
+    max_memory : float, optional
+        Memory budget in bytes for the automatic solver choice.
+    voxelize_options : dict, optional
+        Keyword arguments for :func:`sc_fem.voxelize` (``scale``, ``youngs``, ``fill``, ...).
+    progress : bool
+        Print stage messages to stderr.
+
+    Returns
+    -------
+    ModalBasis
+
+    Raises
+    ------
+    InputError
+        Bad arguments (e.g. ``resolution="auto"`` with a :class:`CubeModel`).
+    SolverError
+        The eigensolver failed or the problem does not fit in memory.
+    """
+    from ..scene import Scene
+
+    element = check_element(element)
+    if n_modes is not None:
+        n_modes = positive_int(n_modes, "n_modes")
+    if max_frequency is not None:
+        max_frequency = positive_scalar(max_frequency, "max_frequency")
+    if damping_ratio is not None and rayleigh is not None:
+        raise InputError("give damping_ratio or rayleigh, not both")
+    vopts = dict(voxelize_options or {})
+    kw = dict(n_modes=n_modes, max_frequency=max_frequency, element=element, lumped=lumped,
+              damping_ratio=damping_ratio, rayleigh=rayleigh, keep_rigid=keep_rigid, keep_lattice=keep_lattice,
+              method=method, backend=backend, max_modes=positive_int(max_modes, "max_modes"),
+              max_memory=max_memory, progress=progress)
+    if isinstance(model, Scene):
+        given = [k for k, v in (("mesh", mesh), ("fix", fix), ("fix_vertices", fix_vertices),
+                                ("resolution", resolution), ("voxelize_options", vopts)) if v is not None and not (isinstance(v, dict) and not v)]
+        if given:
+            raise InputError(f"a Scene already has its mesh, lattice and fixed nodes: do not pass {', '.join(given)}")
+        return finish(solve_scene(model, **kw), kw, {})
+    if isinstance(model, CubeModel):
+        if resolution is not None:
+            raise InputError("resolution= applies to a mesh; a CubeModel already has its grid "
+                             "(pass the mesh as model= for resolution='auto')")
+        if vopts:
+            raise InputError("voxelize_options= applies to a mesh, not to a CubeModel")
+        scene = Scene.from_model(model, mesh, fix=fix, fix_vertices=fix_vertices)
+        return finish(solve_scene(scene, **kw), kw, {})
+    if mesh is not None:
+        raise InputError("mesh= is only used with a CubeModel; pass the mesh as model=")
+    from ..geometry.mesh import load_mesh
+
+    t0 = time.perf_counter()
+    src_mesh = load_mesh(model)
+    timings = {"load": time.perf_counter() - t0}
+    if isinstance(resolution, str) and resolution.strip().lower() == "auto":
+        from .auto import modal_auto
+
+        return modal_auto(src_mesh, tolerance=tolerance, resolutions=resolutions, vopts=vopts, timings=timings,
+                          fix=fix, fix_vertices=fix_vertices, kw=kw)
+    if isinstance(resolution, str):
+        try:
+            resolution = int(resolution)
+        except ValueError:
+            raise InputError(f"resolution must be an integer or 'auto', got {resolution!r}") from None
+    t0 = time.perf_counter()
+    scene = Scene.from_mesh(src_mesh, resolution=resolution, fix=fix, fix_vertices=fix_vertices, **vopts)
+    timings["voxelize"] = time.perf_counter() - t0
+    _log(f"  voxelized: {scene.model.n_cubes} cubes, {scene.model.n_dofs} DOFs", progress)
+    return finish(solve_scene(scene, **kw), kw, timings)

@@ -1,0 +1,182 @@
+"""A model carried through the pipeline: the source mesh, its cube lattice, the trilinear
+embedding that joins them, and the fixed nodes -- built once, used by every solver."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+
+from .errors import InputError
+from .lattice.cubes import CubeModel
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    """Source mesh + :class:`~sc_fem.CubeModel` + embedding + fixed nodes.
+
+    Build it with :meth:`from_mesh` (voxelizes) or :meth:`from_model` (an existing lattice);
+    :func:`sc_fem.modal`, :func:`sc_fem.solve_static`, :func:`sc_fem.dynamics.run_simulation`
+    and the XPBD recorder take it.
+
+    Attributes
+    ----------
+    mesh : trimesh.Trimesh or None
+        The source mesh, model units (None: the lattice nodes stand for it).
+    model : CubeModel
+        The cube lattice.
+    fixed : ndarray of int, shape (k,)
+        Fixed lattice nodes (sorted, unique).
+    fix : tuple of str
+        The fix specifications the nodes came from (for the records of output files).
+    n_fix_vertices : int
+        Source vertices whose cubes were fixed.
+    """
+
+    mesh: Any
+    model: CubeModel
+    fixed: np.ndarray
+    fix: tuple = ()
+    n_fix_vertices: int = 0
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_mesh(cls, source: Any, *, resolution: int | None = None, fix=None, fix_vertices=None,
+                  **voxelize_options: Any) -> "Scene":
+        """Load (any :func:`sc_fem.load_mesh` input), voxelize and fix.
+
+        Parameters
+        ----------
+        source : path, ``"builtin:NAME"``, trimesh.Trimesh or (vertices, faces)
+        resolution : int, optional
+            Cubes along the longest axis (default of :func:`sc_fem.voxelize`).
+        fix : str, FixSpec, callable or list, optional
+            Fixed nodes (:func:`sc_fem.fixed_nodes`); ``"default"`` = a built-in's supports.
+        fix_vertices : array_like of int, optional
+            Source vertices whose cubes are fixed.
+        **voxelize_options
+            :func:`sc_fem.voxelize` options (``pitch``, ``scale``, ``fill``, ``youngs``, ...).
+        """
+        from .geometry.mesh import load_mesh
+        from .lattice.voxelize import voxelize
+
+        mesh = load_mesh(source)
+        model = voxelize(mesh, resolution=resolution, **voxelize_options)
+        return cls.from_model(model, mesh, fix=fix, fix_vertices=fix_vertices)
+
+    @classmethod
+    def from_model(cls, model: CubeModel, mesh: Any = None, *, fix=None, fix_vertices=None) -> "Scene":
+        """A scene around an existing lattice (``mesh`` optional: needed by ``fix_vertices``)."""
+        from .fem.boundary import fixed_nodes
+        from .geometry.mesh import load_mesh
+        from .geometry.models import expand_fix
+
+        if not isinstance(model, CubeModel):
+            raise InputError(f"model must be a CubeModel, got {type(model).__name__}")
+        mesh = None if mesh is None else load_mesh(mesh)
+        if fix_vertices is not None and mesh is None:
+            raise InputError("fix_vertices needs the source mesh (mesh=) to locate the vertices")
+        source = str(model.info.get("source", "")) if mesh is None else str(mesh.metadata.get("source", ""))
+        if fix is None:
+            specs = None
+        else:
+            specs = expand_fix(list(fix) if isinstance(fix, (list, tuple)) else [fix], source)
+        nodes = fixed_nodes(model, specs, vertices=fix_vertices,
+                            mesh_vertices=None if mesh is None else np.asarray(mesh.vertices, dtype=float))
+        record = () if specs is None else tuple(str(s) for s in specs)
+        return cls(mesh=mesh, model=model, fixed=np.asarray(nodes, dtype=np.int64), fix=record,
+                   n_fix_vertices=0 if fix_vertices is None else int(np.size(fix_vertices)))
+
+    # ------------------------------------------------------------------ the source surface
+    @property
+    def rest_vertices(self) -> np.ndarray:
+        """Source vertices at rest, shape (n, 3), model units (the lattice nodes without a mesh)."""
+        if self.mesh is None:
+            return self.model.nodes
+        return np.asarray(self.mesh.vertices, dtype=float)
+
+    @property
+    def faces(self) -> np.ndarray:
+        """Source triangles, shape (f, 3) ((0, 3) without a mesh or for a point set)."""
+        if self.mesh is None:
+            return np.zeros((0, 3), dtype=np.int64)
+        return np.asarray(self.mesh.faces, dtype=np.int64).reshape(-1, 3)
+
+    @property
+    def source(self) -> str:
+        """Name of the source (file path or ``builtin:NAME``)."""
+        meta = {} if self.mesh is None else self.mesh.metadata
+        return str(meta.get("source", self.model.info.get("source", "")))
+
+    @property
+    def sha256(self) -> str:
+        """Checksum of the source mesh's arrays."""
+        meta = {} if self.mesh is None else self.mesh.metadata
+        return str(meta.get("sha256", self.model.info.get("sha256", "")))
+
+    @cached_property
+    def embedding(self):
+        """Where the source vertices sit in the lattice (:class:`~sc_fem.Embedding`)."""
+        from .lattice.embed import embedding
+
+        return embedding(self.model, self.rest_vertices)
+
+    @property
+    def W(self) -> sp.csr_matrix:
+        """Trilinear map, shape (n_vertices, n_nodes): node displacements to vertex displacements."""
+        return self.embedding.W
+
+    # ------------------------------------------------------------------ maps
+    def vertex_displacements(self, u) -> np.ndarray:
+        """Displacements of the source vertices, model units, from node displacements ``u`` in
+        metres: shape (m, 3) -> (n, 3), or a stack (k, m, 3) -> (k, n, 3)."""
+        u = np.asarray(u, dtype=float)
+        m = self.model.n_nodes
+        if u.shape[-2:] != (m, 3) or u.ndim not in (2, 3):
+            raise InputError(f"u must have shape ({m}, 3) or (k, {m}, 3), got {u.shape}")
+        if u.ndim == 2:
+            return np.asarray(self.W @ u) / self.model.scale
+        flat = u.transpose(1, 0, 2).reshape(m, -1)                 # (m, 3k)
+        out = np.asarray(self.W @ flat).reshape(-1, u.shape[0], 3)
+        return out.transpose(1, 0, 2) / self.model.scale
+
+    def vertex_positions(self, u) -> np.ndarray:
+        """Positions of the source vertices (model units) for node displacements ``u`` (m):
+        ``rest + W u / scale``; shapes as in :meth:`vertex_displacements`."""
+        return self.rest_vertices + self.vertex_displacements(u)
+
+    def forces_to_nodes(self, f) -> np.ndarray:
+        """Forces on the source vertices (n, 3), N, to the lattice nodes (m, 3): ``W^T f``
+        (the transpose of the displacement map, so the work done is the same)."""
+        f = np.asarray(f, dtype=float)
+        n = self.W.shape[0]
+        if f.shape != (n, 3):
+            raise InputError(f"f must have shape ({n}, 3), got {f.shape}")
+        return np.asarray(self.W.T @ f)
+
+    @property
+    def fixed_dofs(self) -> np.ndarray:
+        """Fixed degrees of freedom (3 per fixed node)."""
+        from .fem.boundary import fixed_dofs
+
+        return fixed_dofs(self.fixed)
+
+    def fix_record(self) -> dict:
+        """What was fixed, for the records of output files."""
+        return {"specs": list(self.fix), "vertices": self.n_fix_vertices, "n_nodes": int(len(self.fixed))}
+
+    def material_record(self) -> dict:
+        """The material of the cubes (ranges over cubes) and the total mass, for file records."""
+        m = self.model
+        return {"name": str(m.info.get("material", "")),
+                "youngs": [float(m.youngs.min()), float(m.youngs.max())],
+                "poisson": [float(m.poisson.min()), float(m.poisson.max())],
+                "density": [float(m.density.min()), float(m.density.max())],
+                "mass": m.total_mass}
+
+    def __repr__(self) -> str:
+        return (f"Scene({self.source or 'lattice'}: {self.model.n_cubes} cubes, "
+                f"{self.rest_vertices.shape[0]} vertices, {len(self.fixed)} fixed nodes)")
