@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sc_fem.io.animation import load_animation, save_animation
-from sc_fem.errors import InputError, ModeFileError
+from sc_fem.errors import InputError, FileFormatError
 
 
 def _anim(rng, T=4, n=5):
@@ -38,7 +38,7 @@ def test_round_trip_with_curves(tmp_path, rng):
 def test_bad_curves_raise(tmp_path, rng, bad, msg):
     a = _anim(rng)
     p = save_animation(tmp_path / "a.npz", **a, extra={"curves": bad(rng.normal(size=(4, 2, 7, 3)))})
-    with pytest.raises(ModeFileError, match=msg):
+    with pytest.raises(FileFormatError, match=msg):
         load_animation(p)
 
 
@@ -59,22 +59,22 @@ def test_corrupted_truncated_foreign(tmp_path, rng):
     p = save_animation(tmp_path / "a.npz", **_anim(rng))
     data = p.read_bytes()
     (tmp_path / "t.npz").write_bytes(data[: len(data) // 2])
-    with pytest.raises(ModeFileError, match="truncated or corrupted"):
+    with pytest.raises(FileFormatError, match="truncated or corrupted"):
         load_animation(tmp_path / "t.npz")
     np.savez(tmp_path / "f.npz", x=np.zeros(3))
-    with pytest.raises(ModeFileError, match="not an sc_fem animation"):
+    with pytest.raises(FileFormatError, match="not an sc_fem animation"):
         load_animation(tmp_path / "f.npz")
-    with pytest.raises(ModeFileError, match="not found"):
+    with pytest.raises(FileFormatError, match="not found"):
         load_animation(tmp_path / "missing.npz")
     with np.load(p) as z:
         d = {k: z[k] for k in z.files}
     d["format_version"] = np.int64(99)
     np.savez(tmp_path / "v.npz", **d)
-    with pytest.raises(ModeFileError, match="format_version 99"):
+    with pytest.raises(FileFormatError, match="format_version 99"):
         load_animation(tmp_path / "v.npz")
     d["format_version"] = np.int64(1)
     d["positions"] = d["positions"].copy()
     d["positions"][0, 0, 0] = np.nan
     np.savez(tmp_path / "n.npz", **d)
-    with pytest.raises(ModeFileError, match="non-finite"):
+    with pytest.raises(FileFormatError, match="non-finite"):
         load_animation(tmp_path / "n.npz")

@@ -93,3 +93,29 @@ def test_cli_reconstruct_bad_frames(tmp_path, capsys, frames, msg):
 def test_cli_reconstruct_missing_file(tmp_path, capsys):
     assert main(["reconstruct", str(tmp_path / "nope.npz"), "-o", str(tmp_path / "o.npz")]) == 2
     assert "not found" in capsys.readouterr().err
+
+
+def test_reconstruction_file_round_trips_through_its_reader(tmp_path):
+    from sc_fem.errors import FileFormatError, InputError
+    from sc_fem.reconstruct import load_reconstruction, reconstruct_animation, save_reconstruction
+
+    anim = tmp_path / "anim.npz"
+    _tube_animation(anim)
+    res = reconstruct_animation(anim, [0, 5, 10], n_curves=4, n_points=16, n_control=8)
+    path = save_reconstruction(tmp_path / "r.npz", res)
+    back = load_reconstruction(path)
+    for name in ("frames", "fit_frames", "curves_pde", "curves_bspline", "E_A_pde", "E_M_bspline", "vertices_pde"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(res, name))
+    assert back.r == res.r and back.alpha == res.alpha and back.meta == res.meta
+    assert back.fitted.tolist() == [f in (0, 5, 10) for f in range(11)]
+    # the same file read from the CLI's output, and refused when foreign or truncated
+    assert main(["reconstruct", str(anim), "--fit-frames", "0,5,10", "-o", str(tmp_path / "c.npz"),
+                 "--curves", "4", "--points", "16", "--n-control", "8"]) == 0
+    np.testing.assert_allclose(load_reconstruction(tmp_path / "c.npz").curves_pde, res.curves_pde)
+    with pytest.raises(FileFormatError, match="not an sc_fem reconstruction file"):
+        load_reconstruction(anim)
+    (tmp_path / "cut.npz").write_bytes(path.read_bytes()[:200])
+    with pytest.raises(FileFormatError, match="truncated or corrupted"):
+        load_reconstruction(tmp_path / "cut.npz")
+    with pytest.raises(InputError, match="written as .npz"):
+        save_reconstruction(tmp_path / "r.csv", res)

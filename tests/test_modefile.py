@@ -1,4 +1,4 @@
-"""Mode files: round trip, atomic write, and every corruption case raises ModeFileError."""
+"""Mode files: round trip, atomic write, and every corruption case raises FileFormatError."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import zipfile
 import numpy as np
 import pytest
 
-from sc_fem.errors import ModeFileError
+from sc_fem.errors import FileFormatError
 from sc_fem.lattice.cubes import CubeModel
 from sc_fem.modes.modal import modal
 from sc_fem.io.modes import MODES_FORMAT_VERSION, load_modes, save_modes
@@ -84,7 +84,7 @@ def test_truncated_file(saved, tmp_path):
     data = saved.read_bytes()
     bad = tmp_path / "trunc.npz"
     bad.write_bytes(data[: len(data) // 2])
-    with pytest.raises(ModeFileError, match="truncated or corrupted"):
+    with pytest.raises(FileFormatError, match="truncated or corrupted"):
         load_modes(bad)
 
 
@@ -97,26 +97,26 @@ def test_corrupted_bytes(saved, tmp_path):
         data[i] ^= 0xFF
     bad = tmp_path / "corrupt.npz"
     bad.write_bytes(bytes(data))
-    with pytest.raises(ModeFileError):
+    with pytest.raises(FileFormatError):
         load_modes(bad)
 
 
 def test_foreign_files(saved, tmp_path):
     other = tmp_path / "other.npz"
     np.savez(other, a=np.arange(3))
-    with pytest.raises(ModeFileError, match="not an sc_fem mode file"):
+    with pytest.raises(FileFormatError, match="not an sc_fem mode file"):
         load_modes(other)
     text = tmp_path / "text.npz"
     text.write_text("hello, I am not a zip file")
-    with pytest.raises(ModeFileError, match="not a readable"):
+    with pytest.raises(FileFormatError, match="not a readable"):
         load_modes(text)
-    with pytest.raises(ModeFileError, match="not found"):
+    with pytest.raises(FileFormatError, match="not found"):
         load_modes(tmp_path / "missing.npz")
 
 
 def test_wrong_version(saved, tmp_path):
     bad = _rewrite(saved, tmp_path / "v.npz", format_version=np.int64(MODES_FORMAT_VERSION + 1))
-    with pytest.raises(ModeFileError, match="format_version"):
+    with pytest.raises(FileFormatError, match="format_version"):
         load_modes(bad)
 
 
@@ -124,11 +124,11 @@ def test_nan_and_shape_errors(saved, tmp_path):
     with np.load(saved) as z:
         modes, freqs = z["modes"].copy(), z["frequencies"].copy()
     modes[1, 0, 0] = np.nan
-    with pytest.raises(ModeFileError, match="non-finite"):
+    with pytest.raises(FileFormatError, match="non-finite"):
         load_modes(_rewrite(saved, tmp_path / "nan.npz", modes=modes))
-    with pytest.raises(ModeFileError, match="modes must be"):
+    with pytest.raises(FileFormatError, match="modes must be"):
         load_modes(_rewrite(saved, tmp_path / "shape.npz", modes=modes[:, :-1]))
-    with pytest.raises(ModeFileError, match="missing keys"):
+    with pytest.raises(FileFormatError, match="missing keys"):
         load_modes(_rewrite(saved, tmp_path / "key.npz", damping=None))
-    with pytest.raises(ModeFileError, match="ascending"):
+    with pytest.raises(FileFormatError, match="ascending"):
         load_modes(_rewrite(saved, tmp_path / "order.npz", frequencies=freqs[::-1].copy()))

@@ -21,7 +21,7 @@ _LAZY: dict[str, str] = {
     "ScFemError": ".errors", "InputError": ".errors", "MeshError": ".errors",
     "MeshFileError": ".errors", "MaterialError": ".errors", "ResolutionError": ".errors",
     "BoundaryConditionError": ".errors", "SolverError": ".errors", "InstabilityError": ".errors",
-    "ModeFileError": ".errors", "RenderError": ".errors",
+    "FileFormatError": ".errors", "ModeFileError": ".errors", "RenderError": ".errors",
     # geometry -> lattice
     "load_mesh": ".geometry.mesh", "CubeModel": ".lattice.cubes", "Embedding": ".lattice.embed",
     "Scene": ".scene",

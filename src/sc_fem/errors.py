@@ -44,8 +44,13 @@ class InstabilityError(SolverError):
     """A time integration blew up (non-finite state or runaway energy)."""
 
 
-class ModeFileError(ScFemError, OSError):
-    """A mode / animation ``.npz`` file is truncated, corrupted, foreign or of another version."""
+class FileFormatError(ScFemError, OSError):
+    """An sc_fem file (modes, cube model, animation, reconstruction) is missing, truncated,
+    corrupted, foreign or of another version."""
+
+
+ModeFileError = FileFormatError
+"""The old name of :class:`FileFormatError` (it was raised for every sc_fem file, not only mode files)."""
 
 
 class RenderError(ScFemError, RuntimeError):

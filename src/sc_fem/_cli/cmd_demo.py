@@ -42,8 +42,9 @@ def _rope_reconstruction(out: Path) -> list[Path]:
     """XPBD cube-rope (11 keyframes at 20 fps), then PDE reconstruction from the even frames."""
     from ..io.animation import save_animation
     from ..io.render import render_animation
+    from .._atomic import atomic_path
     from ..dynamics.rope_scene import rope_scene
-    from .main import build_parser
+    from ..reconstruct.pipeline import markdown_report, reconstruct_animation, save_reconstruction
 
     scene = rope_scene(n_frames=11, fps=20.0, substeps=180)       # substep 1/3600 s
     anim = save_animation(out / "rope_xpbd.npz", faces=scene.faces, rest_vertices=scene.vertex_positions[0],
@@ -52,9 +53,11 @@ def _rope_reconstruction(out: Path) -> list[Path]:
     gif = render_animation(scene.vertex_positions, scene.faces, out / "rope_xpbd.gif", fps=10,
                            window_size=(640, 480), title="XPBD cube-rope, frames 0-10")
     recon, report = out / "rope_reconstruction.npz", out / "rope_reconstruction.md"
-    args = build_parser().parse_args(["reconstruct", str(anim), "--fit-frames", "0,2,4,6,8,10",
-                                      "-o", str(recon), "--report", str(report)])
-    args.func(args)                    # errors propagate as ScFemError to the demo's own handler
+    result = reconstruct_animation(anim, [0, 2, 4, 6, 8, 10])
+    save_reconstruction(recon, result)
+    with atomic_path(report) as tmp:
+        tmp.write_text(markdown_report(result))
+    print(f"rope reconstruction: {result.summary()}")
     return [anim, gif, recon, report]
 
 

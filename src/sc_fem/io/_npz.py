@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ModeFileError
+from ..errors import FileFormatError
 
 
 def read_versioned_npz(path, *, kind: str, version: int, what: str) -> dict[str, np.ndarray]:
@@ -26,25 +26,25 @@ def read_versioned_npz(path, *, kind: str, version: int, what: str) -> dict[str,
 
     Raises
     ------
-    ModeFileError
+    FileFormatError
         Missing, truncated, corrupted, foreign (other ``kind``) or wrong-version file.
     """
     path = Path(path)
     if not path.is_file():
-        raise ModeFileError(f"{what} not found: {path}")
+        raise FileFormatError(f"{what} not found: {path}")
     try:
         with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}
     except (zipfile.BadZipFile, zlib.error, ValueError, OSError, EOFError, KeyError) as exc:
-        raise ModeFileError(f"{path} is not a readable .npz {what} (truncated or corrupted?): "
+        raise FileFormatError(f"{path} is not a readable .npz {what} (truncated or corrupted?): "
                             f"{type(exc).__name__}: {exc}") from None
     found = str(data["kind"]) if "kind" in data and data["kind"].shape == () else None
     if found != kind:
-        raise ModeFileError(f"{path} is not an sc_fem {what} (kind={found!r}; keys {sorted(data)[:8]})")
+        raise FileFormatError(f"{path} is not an sc_fem {what} (kind={found!r}; keys {sorted(data)[:8]})")
     try:
         got = int(data["format_version"])
     except (KeyError, TypeError, ValueError):
         got = -1
     if got != version:
-        raise ModeFileError(f"{path}: unsupported {what} format_version {got} (this sc_fem reads version {version})")
+        raise FileFormatError(f"{path}: unsupported {what} format_version {got} (this sc_fem reads version {version})")
     return data

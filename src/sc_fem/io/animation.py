@@ -31,7 +31,7 @@ import numpy as np
 from .._atomic import save_npz_atomic
 from ._npz import read_versioned_npz
 from .._validate import as_float_array
-from ..errors import InputError, ModeFileError
+from ..errors import InputError, FileFormatError
 
 ANIMATION_FORMAT_VERSION = 1
 ANIMATION_KIND = "sc_fem.animation"
@@ -117,7 +117,7 @@ def load_animation(path) -> Animation:
 
     Raises
     ------
-    ModeFileError
+    FileFormatError
         Missing, truncated, corrupted, foreign (not an sc_fem animation) or wrong-version file,
         or an optional ``curves`` array of the wrong shape or with non-finite values.
     """
@@ -126,25 +126,25 @@ def load_animation(path) -> Animation:
                               what="animation file")
     missing = {"faces", "rest_vertices", "times", "positions", "energy"} - set(data)
     if missing:
-        raise ModeFileError(f"{path}: missing keys {sorted(missing)}")
+        raise FileFormatError(f"{path}: missing keys {sorted(missing)}")
     faces, rest, times = data["faces"], data["rest_vertices"], data["times"]
     positions, energy = data["positions"], data["energy"]
     try:
         _check(faces, rest, times, positions, energy)
     except InputError as exc:
-        raise ModeFileError(f"{path}: {exc}") from None
+        raise FileFormatError(f"{path}: {exc}") from None
     if not (np.all(np.isfinite(positions)) and np.all(np.isfinite(rest)) and np.all(np.isfinite(times))):
-        raise ModeFileError(f"{path}: non-finite positions, rest vertices or times")
+        raise FileFormatError(f"{path}: non-finite positions, rest vertices or times")
     curves = None
     if "curves" in data:
         curves = data["curves"]
         if (curves.ndim != 4 or curves.shape[0] != len(times) or curves.shape[-1] != 3
                 or not np.issubdtype(curves.dtype, np.number)):
-            raise ModeFileError(f"{path}: curves must have shape ({len(times)}, C, P, 3), got "
+            raise FileFormatError(f"{path}: curves must have shape ({len(times)}, C, P, 3), got "
                                 f"{curves.dtype} {curves.shape}")
         curves = curves.astype(np.float64, copy=False)
         if not np.all(np.isfinite(curves)):
-            raise ModeFileError(f"{path}: curves contain {int(np.count_nonzero(~np.isfinite(curves)))} "
+            raise FileFormatError(f"{path}: curves contain {int(np.count_nonzero(~np.isfinite(curves)))} "
                                 "non-finite value(s)")
     meta = json.loads(str(data.get("meta_json", "{}")))
     return Animation(faces=faces, rest_vertices=rest, times=times, positions=positions,

@@ -31,7 +31,7 @@ lattice_*            optional          the lattice (``keep_lattice``): cells, or
 ===================  ================  ==========================================================
 
 :func:`load_modes` checks the kind, version, keys, shapes, dtypes and finiteness and raises
-:class:`~sc_fem.errors.ModeFileError` naming the problem for a missing, truncated, corrupted,
+:class:`~sc_fem.errors.FileFormatError` naming the problem for a missing, truncated, corrupted,
 foreign or wrong-version file.
 """
 
@@ -44,7 +44,7 @@ import numpy as np
 
 from .._atomic import save_npz_atomic
 from ._npz import read_versioned_npz
-from ..errors import InputError, ModeFileError
+from ..errors import InputError, FileFormatError
 from ..modes.modal import ModalBasis
 
 MODES_FORMAT_VERSION = 1
@@ -103,11 +103,11 @@ def _json_default(o):
 
 
 def _fail(path, msg: str):
-    raise ModeFileError(f"{path}: {msg}")
+    raise FileFormatError(f"{path}: {msg}")
 
 
 def _check_arrays(d: dict, path) -> None:
-    """Validate the arrays of a mode file (raises ModeFileError)."""
+    """Validate the arrays of a mode file (raises FileFormatError)."""
     missing = [k for k in _REQUIRED if k not in d]
     if missing:
         _fail(path, f"not a complete sc_fem mode file: missing keys {missing}")
@@ -160,7 +160,7 @@ def load_modes(path) -> ModalBasis:
 
     Raises
     ------
-    ModeFileError
+    FileFormatError
         Missing, truncated, corrupted, foreign or wrong-version file, missing keys, wrong shapes,
         NaN/inf values.
     """
@@ -173,7 +173,7 @@ def load_modes(path) -> ModalBasis:
         fixed = json.loads(str(data["fixed_json"]))
         meta = json.loads(str(data["meta_json"]))
     except json.JSONDecodeError as exc:
-        raise ModeFileError(f"{path}: corrupted metadata ({exc})") from None
+        raise FileFormatError(f"{path}: corrupted metadata ({exc})") from None
     lattice = node_modes = None
     if "lattice_node_modes" in data:
         from ..lattice.cubes import CubeModel
@@ -187,10 +187,10 @@ def load_modes(path) -> ModalBasis:
                 stiffness=str(data["lattice_stiffness"]) if "lattice_stiffness" in data else "full",
                 moments=data["lattice_moments"] if "lattice_moments" in data else None)
         except InputError as exc:
-            raise ModeFileError(f"{path}: invalid lattice: {exc}") from None
+            raise FileFormatError(f"{path}: invalid lattice: {exc}") from None
         node_modes = data["lattice_node_modes"]
         if node_modes.shape[1] != lattice.n_nodes:
-            raise ModeFileError(f"{path}: lattice_node_modes has {node_modes.shape[1]} nodes, the lattice "
+            raise FileFormatError(f"{path}: lattice_node_modes has {node_modes.shape[1]} nodes, the lattice "
                                 f"{lattice.n_nodes}")
     return ModalBasis(
         frequencies=data["frequencies"], modes=data["modes"], vertices=data["vertices"], faces=data["faces"],

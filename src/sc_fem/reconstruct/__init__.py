@@ -16,11 +16,12 @@ from .meshmap import curve_mesh_map, extract_curves, lattice_lines, mesh_vertice
 from .metrics import ReconstructionErrors, curve_diameter, errors
 from .param import parametrize
 from .pde import PDEModel, SearchResult, fit
+from .pipeline import Reconstruction, load_reconstruction, reconstruct_animation, save_reconstruction
 from .rigid import RigidAlignment, RigidMotion, kabsch, remove_rigid
 
 __all__ = [
-    "BSplineModel", "PDEModel", "ReconstructionErrors", "RigidAlignment", "RigidMotion", "SearchResult",
+    "BSplineModel", "PDEModel", "Reconstruction", "ReconstructionErrors", "RigidAlignment", "RigidMotion", "SearchResult",
     "basis", "bspline_baseline", "curve_diameter", "curve_mesh_map", "errors", "extract_curves", "fit",
     "kabsch", "lattice_lines", "mesh_vertices", "paper_scale", "parametrize", "pde_sign", "remove_rigid", "space_basis",
-    "time_basis",
+    "time_basis", "reconstruct_animation", "save_reconstruction", "load_reconstruction",
 ]

@@ -1,0 +1,216 @@
+"""The reconstruction job on a vertex animation: extract (or read) curves, fit the PDE model at
+some frames, fit the B-spline baseline at the same frames, compare both at every frame in
+between -- and the ``.npz`` file that holds the result, with its reader."""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+
+RECON_KIND = "sc_fem.reconstruction"
+RECON_FORMAT_VERSION = 1
+
+
+@dataclass(frozen=True, eq=False)
+class Reconstruction:
+    """PDE and B-spline reconstructions of an animation's curves.
+
+    Attributes
+    ----------
+    frames : ndarray of int, shape (F,)
+        Frames evaluated (every frame from the first to the last fitted one).
+    times : ndarray, shape (F,)
+        Their times, s.
+    fit_frames : ndarray of int, shape (K,)
+        Frames the models were fitted to.
+    curves_reference, curves_pde, curves_bspline : ndarray, shape (F, C, P, 3)
+        Simulated, PDE and B-spline curves, model units.
+    E_A_pde, E_M_pde, E_A_bspline, E_M_bspline : ndarray, shape (F, C)
+        The paper's errors (Eqs. 26-27) per frame and curve, relative to the curve's diameter.
+    r, alpha : float
+        Spatial and temporal rates of the PDE model.
+    coefficients : ndarray
+        The PDE model's fitted coefficients.
+    u : ndarray
+        Curve parameter values.
+    faces : ndarray of int, shape (f, 3)
+        Triangles of the animated mesh.
+    vertices_pde : ndarray, shape (F, n, 3) or None
+        Mesh rebuilt from the PDE curves (when the curves were extracted from the mesh).
+    mesh_error_pde : ndarray, shape (F,) or None
+        Mean vertex error of that mesh / bounding-box diagonal.
+    meta : dict
+        Source, timings (s), design-variable counts and options.
+    """
+
+    frames: np.ndarray
+    times: np.ndarray
+    fit_frames: np.ndarray
+    curves_reference: np.ndarray
+    curves_pde: np.ndarray
+    curves_bspline: np.ndarray
+    E_A_pde: np.ndarray
+    E_M_pde: np.ndarray
+    E_A_bspline: np.ndarray
+    E_M_bspline: np.ndarray
+    r: float
+    alpha: float
+    coefficients: np.ndarray
+    u: np.ndarray
+    faces: np.ndarray
+    vertices_pde: np.ndarray | None = None
+    mesh_error_pde: np.ndarray | None = None
+    curve_vertex_index: np.ndarray | None = None
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def fitted(self) -> np.ndarray:
+        """Which of :attr:`frames` were fitted, bool (F,)."""
+        return np.isin(self.frames, self.fit_frames)
+
+    def summary(self) -> str:
+        """One line: mean E_A and max E_M of both methods and the PDE's rates."""
+        return (f"PDE: mean E_A {self.E_A_pde.mean():.6f}, max E_M {self.E_M_pde.max():.6f} (r={self.r:.4g}, "
+                f"alpha={self.alpha:.4g}); B-spline: mean E_A {self.E_A_bspline.mean():.6f}, "
+                f"max E_M {self.E_M_bspline.max():.6f}")
+
+
+_ARRAYS = ("frames", "times", "fit_frames", "curves_reference", "curves_pde", "curves_bspline", "E_A_pde",
+           "E_M_pde", "E_A_bspline", "E_M_bspline", "coefficients", "u", "faces")
+_OPTIONAL = ("vertices_pde", "mesh_error_pde", "curve_vertex_index")
+
+
+def reconstruct_animation(animation, fit_frames, *, n_curves: int = 8, n_points: int = 64, r=None, alpha=None,
+                          parametrization: str = "paper", criterion: str = "residual",
+                          rigid_interpolation: str = "cubic", remove_rigid: bool = True,
+                          n_control: int = 50) -> Reconstruction:
+    """Reconstruct ``animation`` from ``fit_frames`` with the PDE model and the B-spline baseline.
+
+    Parameters
+    ----------
+    animation : sc_fem.Animation or path
+        A vertex animation (as written by ``sc-fem simulate``); its ``curves`` (T, C, P, 3) are used
+        when it has them, otherwise ``n_curves`` curves of ``n_points`` vertices are extracted along
+        the rest principal axis and the mesh is rebuilt from them.
+    fit_frames : array_like of int
+        At least two increasing frame indices.
+    r, alpha : float, optional
+        PDE rates (searched when omitted).
+    parametrization, criterion, rigid_interpolation, remove_rigid
+        See :func:`sc_fem.reconstruct.fit`.
+    n_control : int
+        B-spline control points per curve (capped at the points per curve).
+    """
+    from ..io.animation import Animation, load_animation
+    from .bspline import bspline_baseline
+    from .meshmap import curve_mesh_map, extract_curves, mesh_vertices
+    from .metrics import errors
+    from .pde import check_frame_indices, fit
+
+    anim = animation if isinstance(animation, Animation) else load_animation(animation)
+    fit_idx = check_frame_indices(np.asarray(fit_frames), anim.n_frames, name="fit_frames")
+    frames = np.arange(fit_idx[0], fit_idx[-1] + 1)
+    curves, idx = anim.curves, None
+    if curves is None:
+        idx = extract_curves(anim.rest_vertices, n_curves, n_points)
+        curves = anim.positions[:, idx].astype(np.float64)                # (T, C, P, 3)
+    times = np.asarray(anim.times, dtype=float)
+    t0 = time.perf_counter()
+    model = fit(curves[fit_idx], times[fit_idx], r=r, alpha=alpha, remove_rigid=remove_rigid,
+                parametrization=parametrization, rigid_interpolation=rigid_interpolation, criterion=criterion)
+    pde_curves = model.evaluate(times[frames])
+    t_pde = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    bs = bspline_baseline(curves, times, fit_idx, n_control=min(int(n_control), curves.shape[2]))
+    bs_curves = bs.evaluate(times[frames])
+    t_bs = time.perf_counter() - t0
+    ref = curves[frames]
+    e_pde, e_bs = errors(ref, pde_curves), errors(ref, bs_curves)
+    extra = {}
+    if idx is not None:
+        f0 = fit_idx[0]
+        w = curve_mesh_map(curves[f0], anim.positions[f0], k=4)
+        verts = mesh_vertices(model, times[frames], w, curves[f0], anim.positions[f0])
+        diag = float(np.linalg.norm(np.ptp(anim.rest_vertices, axis=0)))
+        extra = dict(curve_vertex_index=idx, vertices_pde=verts.astype(np.float32),
+                     mesh_error_pde=np.linalg.norm(verts - anim.positions[frames], axis=-1).mean(axis=1) / diag)
+    counts = {"PDE scalars (coefficients + r, alpha + rigid)": int(model.n_parameters),
+              "PDE constants, paper's count (32 per curve)": 32 * int(model.n_curves),
+              "B-spline scalars": int(bs.n_parameters), "B-spline control points (paper's count)": int(bs.n_control_points),
+              "reference scalars (curve points x 3 x frames)": int(ref.size)}
+    meta = {"source": str(anim.meta.get("source", "")) if isinstance(animation, Animation) else str(animation),
+            "timings_s": {"pde": t_pde, "bspline": t_bs}, "counts": counts, "criterion": criterion,
+            "rigid_interpolation": rigid_interpolation, "remove_rigid": bool(remove_rigid),
+            "parametrization": model.parametrization, "curves_extracted": idx is not None}
+    return Reconstruction(frames=frames, times=times[frames], fit_frames=fit_idx, curves_reference=ref,
+                          curves_pde=pde_curves, curves_bspline=bs_curves, E_A_pde=e_pde.E_A, E_M_pde=e_pde.E_M,
+                          E_A_bspline=e_bs.E_A, E_M_bspline=e_bs.E_M, r=float(model.r), alpha=float(model.alpha),
+                          coefficients=model.coefficients, u=model.u, faces=np.asarray(anim.faces), meta=meta,
+                          **extra)
+
+
+def save_reconstruction(path, result: Reconstruction) -> Path:
+    """Write ``result`` to ``path`` (``.npz``, atomically); read it back with :func:`load_reconstruction`."""
+    from .._atomic import save_npz_atomic
+
+    path = Path(path)
+    if path.suffix.lower() != ".npz":
+        raise InputError(f"a reconstruction is written as .npz, got {path.name!r}")
+    arrays = {k: getattr(result, k) for k in _ARRAYS}
+    arrays.update({k: getattr(result, k) for k in _OPTIONAL if getattr(result, k) is not None})
+    return save_npz_atomic(path, format_version=np.int64(RECON_FORMAT_VERSION), kind=np.str_(RECON_KIND),
+                           r=np.float64(result.r), alpha=np.float64(result.alpha),
+                           meta_json=np.str_(json.dumps(result.meta)), **arrays)
+
+
+def load_reconstruction(path) -> Reconstruction:
+    """Read a file written by :func:`save_reconstruction` (or ``sc-fem reconstruct``).
+
+    Raises
+    ------
+    FileFormatError
+        Missing, corrupted, foreign or other-version file.
+    """
+    from ..errors import FileFormatError
+    from ..io._npz import read_versioned_npz
+
+    data = read_versioned_npz(path, kind=RECON_KIND, version=RECON_FORMAT_VERSION, what="reconstruction file")
+    missing = [k for k in (*_ARRAYS, "r", "alpha") if k not in data]
+    if missing:
+        raise FileFormatError(f"{path}: reconstruction file lacks {missing}")
+    meta = json.loads(str(data["meta_json"])) if "meta_json" in data else {}
+    return Reconstruction(**{k: data[k] for k in _ARRAYS}, r=float(data["r"]), alpha=float(data["alpha"]),
+                          **{k: data.get(k) for k in _OPTIONAL}, meta=meta)
+
+
+def markdown_report(result: Reconstruction) -> str:
+    """Markdown: per-frame E_A / E_M (mean / max over curves) for PDE and B-spline, then a summary."""
+    res = result
+    lines = ["| frame | fitted | PDE E_A | PDE E_M | B-spline E_A | B-spline E_M |",
+             "|---:|:---:|---:|---:|---:|---:|"]
+    fitted = res.fitted
+    for k, f in enumerate(res.frames):
+        lines.append(f"| {f} | {'yes' if fitted[k] else ''} | {res.E_A_pde[k].mean():.6f} | "
+                     f"{res.E_M_pde[k].max():.6f} | {res.E_A_bspline[k].mean():.6f} | {res.E_M_bspline[k].max():.6f} |")
+    lines += ["", f"mean E_A: PDE {res.E_A_pde.mean():.6f}, B-spline {res.E_A_bspline.mean():.6f}; "
+              f"max E_M: PDE {res.E_M_pde.max():.6f}, B-spline {res.E_M_bspline.max():.6f}",
+              "(E_A, E_M: paper Eqs. 26-27, per curve, normalised by the curve's diameter D; "
+              "table: mean of E_A and max of E_M over the curves)", "",
+              "| quantity | value |", "|---|---:|"]
+    c = res.curves_reference.shape
+    rows = {"curves x points": f"{c[1]} x {c[2]}" + (" (extracted)" if res.meta.get("curves_extracted") else " (stored)"),
+            "r": f"{res.r:.4g}", "alpha": f"{res.alpha:.4g}", "parametrization": res.meta.get("parametrization", "")}
+    if res.mesh_error_pde is not None:
+        rows["mesh mean vertex error / bbox diagonal (PDE, max over frames)"] = f"{np.max(res.mesh_error_pde):.6f}"
+    t = res.meta.get("timings_s", {})
+    rows["PDE fit + evaluation (s)"] = f"{t.get('pde', float('nan')):.3f}"
+    rows["B-spline fit + evaluation (s)"] = f"{t.get('bspline', float('nan')):.3f}"
+    rows.update(res.meta.get("counts", {}))
+    lines += [f"| {k} | {v} |" for k, v in rows.items()]
+    return "\n".join(lines) + "\n"
