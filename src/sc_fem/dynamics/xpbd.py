@@ -1,102 +1,13 @@
-"""XPBD (Macklin, Mueller & Chentanez 2016) on the Squashing Cubes lattice.
+"""XPBD (Macklin, Mueller & Chentanez 2016) on the Squashing Cubes lattice: :class:`XPBDSolver`.
 
-Algorithm 1 of the paper, per substep of length ``dt_s = dt / substeps``:
-
-1. prediction ``x0 = x + dt_s v + dt_s^2 g`` (fixed nodes have inverse mass 0 and do not move);
-2. ``iterations`` solver passes; each constraint ``C`` with compliance ``alpha`` (scaled
-   ``alpha~ = alpha / dt_s^2``) updates its Lagrange multiplier
-   ``dlam = (-C - alpha~ lam) / (sum_i w_i |grad_i C|^2 + alpha~)``, ``lam += dlam``,
-   ``x_i += w_i grad_i C dlam`` -- the multipliers accumulate across iterations;
-3. velocity update ``v = (x - x_prev) / dt_s``, then optional mass-proportional damping.
-
-Constraints (``constraints=``):
-
-``"neohookean"`` (default) -- Macklin & Mueller 2021 ("A constraint-based formulation of stable
-    Neo-Hookean materials") from the *same* material as the FEM: per cube a hydrostatic
-    constraint ``C_H = det F - gamma`` (``gamma = 1 + mu / lam_nh``, compliance ``1 / (lam_nh V)``)
-    and a deviatoric one ``C_D = sqrt(mean_cube |F|^2)`` (compliance ``1 / (mu V)``), with
-    ``lam_nh = lambda + mu`` so that the linearisation at rest is exactly linear elasticity with the
-    model's Lame parameters (``CubeModel.lame()``). Both are solved together as a 2x2 block per
-    cube, so the rest state is an exact fixed point of every iteration.
-
-    Hexahedral quadrature: ``C_H`` uses ``F`` at the cube centre (1-point); alone, 1-point ``F`` has
-    12 zero-energy hourglass modes per cube (including the element bending modes, which makes
-    beams too soft / unstable). ``C_D`` therefore integrates ``|F|^2`` *exactly* over the trilinear
-    cube (``mean |F|^2 = x^T L x / h^2`` with the cube's reference Laplacian ``L``), which is the
-    hourglass-stabilised, selectively-reduced-integrated hex: the ``mu`` term is fully integrated
-    (no hourglass modes), the volumetric term is 1-point (no volumetric locking). Still two
-    scalar constraints per cube, so one vectorized sweep per colour.
-
-``"corotational"`` -- per cube an ARAP block ``C_D = S (X - R X_ref) / h`` (``S = sqrt(L)``, so
-    ``|C_D|^2 h^3 = int |grad x - R|^2`` exactly; ``R`` = polar rotation of the centre ``F``,
-    refreshed once per iteration; compliance ``1 / (2 mu V)``) solved exactly as a 24-dof block at
-    fixed ``R``, then the volume constraint ``det F - 1`` (compliance ``1 / (lambda V)``). Zero
-    rest values, no cancelling multipliers. Eigen-analysis of one substep's linearised map at rest
-    (tests): spectral radius <= 1 + 5e-4 at 1-16 ms substeps (0.9990 / 1.00006 / 1.0005 / 0.99997
-    at 1 / 2 / 4 / 16 ms), whereas the Neo-Hookean pair reaches ~3.8 at
-    1 ms and ~2.5e5 at 4 ms on a 5 MPa 5 cm lattice (its C_D and C_H gradients are parallel at
-    rest, so the 2x2 solve produces large cancelling multipliers ~1/alpha~ and the one-sweep
-    Gauss-Seidel overshoots). Limits (measured): with one iteration at long substeps it is far
-    too soft (8x2x2 cantilever: 4.1x the FEM sag at 5 ms) and, with gravity, it pumps spurious
-    elastic energy (growth > 10 M|g|D at >= 8 ms on that beam -> InstabilityError); converged it is
-    ~11 % stiffer than q1i on a 2-cube-thick beam (fully integrated rotation term), and it costs
-    ~2-3x the Neo-Hookean sweep. Use it when the Neo-Hookean pair blows up; not the default.
-
-    Why the Neo-Hookean pair is unstable at long substeps (derived, and measured with the tests'
-    spectral-radius helper, 6x2x2 cubes, h = 5 cm, E = 5 MPa): at rest its Gauss-Newton block
-    ``grad C^T grad C`` only holds volumetric stiffness (the gradients of ``C_D = sqrt(3)`` and
-    ``C_H`` are both ``~ I``); the whole shear stiffness comes from the curvature terms ``mu C_D
-    grad^2 C_D + lam_nh C_H grad^2 C_H`` of the non-zero rest values, which XPBD applies only via
-    re-evaluated gradients times the prestress multipliers -- explicitly, hence a CFL-type limit
-    ``~ h / c_s``. Spectral radius at 0.25 / 0.5 / 1 / 2 / 4 ms substeps: coupled 2x2 (kept) 0.9998 /
-    0.9993 / 3.77 / 104 / 2.5e5; sequential C_D then C_H (2021 paper) 0.9997 / 0.9994 / 1.04 / 2.83 /
-    14.5 (and rest is no longer a fixed point of one iteration); 2x2 with a proximal term ``A_ii (1 +
-    eps)`` (fixed point unchanged) eps = 0.01: 3.63 / 88.9 / 376 at 1 / 2 / 4 ms, eps = 0.1: 2.62 /
-    23.2 / 67.5; corotational 0.9998 / 0.9994 / 0.9990 / 1.00006 / 1.0005. ``C_D = |F| - sqrt(3)``
-    (zero rest value) has no shear stiffness at rest; any scalar deviatoric constraint has a rank-1
-    Gauss-Newton block, so a stable small-strain-exact form needs a block constraint like ARAP. A
-    corotational quadrature with exactly the Neo-Hookean linearisation (``S = sqrt((L + DN DN^T)/2)``:
-    half fully integrated, half 1-point; energies agree to 1e-4, converged 8x2x2 sag 1.052 x q1sri
-    for both) was tried and not kept: equally stable, but at 50 x 1 per 60-fps frame it is softer
-    (quick bar 24x3x3: sag / FEM 1.085, period / FEM 1.047 vs 1.001 / 1.006 for this quadrature,
-    whose full-integration stiffening happens to cancel the one-iteration softening; full bar
-    48x6x6, first peak / (2 FEM sag): 1.51 vs 1.49, Neo-Hookean 1.10). Warm start makes the
-    corotational pair unstable at >= 0.67 ms substeps on the quick bar.
-
-Blow-up detection: after every step, non-finite positions/velocities or a total energy above its
-start by more than ``max_energy_growth`` (default 10) x ``energy_scale`` (max of initial kinetic +
-elastic energy and ``M |g| diameter``) raise :class:`~sc_fem.errors.InstabilityError` naming the step
-and the substep length. :func:`stability_sweep` returns (dt, max energy growth, blown up, error)
-rows for a model (used by ``benchmarks/xpbd.py``); its error compares the *final* displacement
-with a static reference.
-
-``"distance"`` -- classic per-cube distance constraints along the 12 edges, 12 face diagonals and
-    4 body diagonals (a central-force lattice). Stiffnesses ``k_edge = k_face = M h / 12``,
-    ``k_body = M h / 4`` with the P-wave modulus ``M = lambda + 2 mu`` reproduce the uniaxial-strain
-    modulus; a central-force lattice has Poisson's ratio 1/4 (Cauchy relation), so this is only an
-    approximation of the material (the simple variant).
-
-Vectorization: cubes whose (i, j, k) have equal parities share no node, so the lattice splits
-into 8 colours and Gauss-Seidel runs as 8 vectorized sweeps per iteration (distance constraints:
-each cube's 28 constraints form 7 perfect matchings of its 8 corners, so 8 x 7 sweeps). The Jacobi
-variant (``gauss_seidel=False``) updates all constraints at once with under-relaxation
-``relaxation / (max node valence of the constraint)``.
-
-``warm_start=True`` (an extension, off by default = Algorithm 1): the multipliers of the previous
-substep are re-used and their correction applied after the prediction (an explicit force
-predictor). Then a static equilibrium is an exact fixed point for any iteration count, which
-removes the "effective stiffness depends on iterations" bias of XPBD at rest.
-
-Numerical damping: XPBD with few iterations is implicit-Euler-like and dissipates energy; the
-dissipation falls with more substeps. Measured (``python benchmarks/xpbd.py --quick``: 4 m bar,
-24 x 3 x 3 cubes, first bending mode T = 0.866 s, 2.6 periods of free vibration, log decrement of
-successive downward tip peaks): neohookean 25 substeps/frame (0.67 ms) delta = 0.021 (zeta =
-0.34 %), 50 substeps delta = 0.016 (zeta = 0.26 %), 50 substeps warm start delta = 0.010 (0.17 %),
-corotational 50 substeps delta = 0.020 (0.31 %); i.e. 1.4x (0.67 ms) to 2.2x (0.33 ms) implicit
-Euler's zeta = omega dt_s / 2 (omega = 7.25 rad/s): halving the substep removes only ~1/4 of the
-damping, because the unconverged single iteration adds its own dissipation. The full-size figures
-are printed by the default run. ``damping`` adds explicit mass-proportional damping
-``v <- v / (1 + damping * dt_s)`` (1/s).
+Per substep: predict, one or more vectorized Gauss-Seidel sweeps (8 cube colours) over the
+constraints of every cube, update velocities. Constraints: ``"neohookean"`` (default; the stable
+Neo-Hookean pair linearising to the lattice's own Lame parameters), ``"corotational"`` (an ARAP
+block, stable at long substeps but soft) and ``"distance"`` (a central-force lattice). A step that
+blows up raises :class:`~sc_fem.errors.InstabilityError` naming the substep that is too long.
+The constraint kernels are in :mod:`.xpbd_kernels`, the stability sweep in :mod:`.xpbd_stability`;
+the algorithm, the quadrature and the measurements behind the defaults are in ``docs/xpbd.md``.
+Through :class:`~sc_fem.dynamics.xpbd_integrator.XPBDIntegrator` it runs on the common driver.
 
 Units: positions in metres, velocities m/s, times s, energies J.
 """
@@ -110,117 +21,18 @@ from typing import Iterator
 import numpy as np
 
 from .._validate import as_float_array, as_points, positive_int, positive_scalar
-from ..errors import BoundaryConditionError, InputError, InstabilityError
-from .base import Energy
-from .corotational import DN_CENTRE, centre_F, cofactor, polar_rotation
+from ..errors import InputError, InstabilityError
 from ..lattice.cubes import HEX_CORNERS, CubeModel
+from .base import Energy
+from .corotational import centre_F, polar_rotation
+from .xpbd_kernels import (MATCHING_KIND, MATCHINGS, S_REF, _as_fixed, _scatter_add, _volume_terms, corotational_terms, cube_colors,
+                           neohookean_terms)
 
 CONSTRAINTS = ("corotational", "neohookean", "distance")
 
 XPBDEnergy = Energy
 """Energy split of an XPBD state (alias of :class:`sc_fem.dynamics.base.Energy`): kinetic,
 gravity potential (relative to the rest positions), elastic (of the constraints, zero at rest), J."""
-
-
-def _reference_laplacian() -> np.ndarray:
-    """``L_ab = int_unit cube grad N_a . grad N_b`` (8, 8), exact by 2x2x2 Gauss."""
-    g = 0.5 + np.array([-0.5, 0.5]) / np.sqrt(3.0)
-    q = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)          # (8, 3)
-    o = HEX_CORNERS[None, :, :]                                                     # (1, 8, 3)
-    f = np.where(o == 1, q[:, None, :], 1.0 - q[:, None, :])                       # (8q, 8a, 3)
-    df = np.where(o == 1, 1.0, -1.0) * np.ones_like(f)
-    grad = np.stack([df[..., 0] * f[..., 1] * f[..., 2], f[..., 0] * df[..., 1] * f[..., 2],
-                     f[..., 0] * f[..., 1] * df[..., 2]], -1)                       # (8q, 8a, 3)
-    return np.einsum("qai,qbi->ab", grad, grad) / 8.0
-
-
-L_REF = _reference_laplacian()
-"""Reference Laplacian of the unit cube, shape (8, 8), in :data:`HEX_CORNERS` order."""
-
-# 7 perfect matchings of the 8 corners (3 edge sets, 3 face-diagonal sets, 1 body-diagonal set)
-def _matchings() -> tuple[np.ndarray, np.ndarray]:
-    pairs, kinds = [], []
-    for a in range(8):
-        for b in range(a + 1, 8):
-            d = np.abs(HEX_CORNERS[a] - HEX_CORNERS[b])
-            pairs.append((a, b, int(d.sum()), tuple(d)))
-    groups = []
-    for kind in (1, 2):   # edges / face diagonals grouped by the axis (edge) or face normal
-        for ax in range(3):
-            sel = [(a, b) for a, b, n, d in pairs if n == kind and
-                   ((kind == 1 and d[ax] == 1) or (kind == 2 and d[ax] == 0))]
-            groups.append(sel)
-            kinds.append(kind)
-    groups.append([(a, b) for a, b, n, _ in pairs if n == 3])
-    kinds.append(3)
-    return np.array(groups, dtype=np.int64), np.array(kinds)
-
-
-MATCHINGS, MATCHING_KIND = _matchings()               # (7, 4, 2), (7,) 1=edge 2=face 3=body
-
-
-def _sqrt_laplacian() -> np.ndarray:
-    e, V = np.linalg.eigh(L_REF)
-    return (V * np.sqrt(np.maximum(e, 0.0))) @ V.T
-
-
-S_REF = _sqrt_laplacian()
-"""Symmetric square root of :data:`L_REF` (8, 8): ``S S = L_REF``, ``S 1 = 0``."""
-
-
-def _volume_terms(X: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
-    """``J = det F`` at the cube centre and its gradient ``grad_a J = cof(F) grad N_a``.
-
-    Parameters
-    ----------
-    X : ndarray, shape (n, 8, 3)
-        Corner positions, metres, :data:`HEX_CORNERS` order.
-    h : float
-        Rest edge, metres.
-
-    Returns
-    -------
-    J : ndarray, shape (n,)
-        Dimensionless.
-    gJ : ndarray, shape (n, 8, 3)
-        1/m.
-    """
-    F = centre_F(X, h)                                               # (n, 3, 3), F_jk
-    cof = cofactor(F)
-    J = np.einsum("ij,ij->i", F[:, 0, :], cof[:, 0, :])
-    return J, np.matmul(DN_CENTRE, cof.transpose(0, 2, 1)) * (1.0 / h)
-
-
-def _scatter_add(x: np.ndarray, nodes: np.ndarray, dX: np.ndarray) -> None:
-    """``x[nodes] += dX`` with repeated nodes summed; ``x`` (m, 3), ``nodes`` (k, c), ``dX`` (k, c, 3)."""
-    flat = nodes.ravel()
-    for j in range(3):
-        x[:, j] += np.bincount(flat, weights=dX[..., j].ravel(), minlength=len(x))
-
-
-def corotational_terms(X: np.ndarray, h: float, R: np.ndarray):
-    """Deviatoric (ARAP) constraint vectors of a batch of cubes.
-
-    ``C_D = S (X - X_ref R^T) / h`` with ``S = sqrt(L_REF)``, so that ``|C_D|^2 h^3 =
-    int_cube |grad x - R|^2`` exactly for the trilinear cube (``R`` constant in the cube).
-
-    Parameters
-    ----------
-    X : ndarray, shape (n, 8, 3)
-        Corner positions, metres, :data:`HEX_CORNERS` order.
-    h : float
-        Rest edge, metres.
-    R : ndarray, shape (n, 3, 3)
-        Rotation per cube (normally :func:`polar_rotation` of the centre ``F``).
-
-    Returns
-    -------
-    ndarray, shape (n, 8, 3)
-        ``C_D`` (dimensionless); its gradient w.r.t. corner ``a`` component ``j`` at fixed
-        ``R`` is ``S[:, a] / h`` for component ``j``.
-    """
-    Xr = np.matmul((h * HEX_CORNERS)[None], R.transpose(0, 2, 1))        # (n, 8, 3) = R X_ref
-    return np.matmul(S_REF, X - Xr) * (1.0 / h)
 
 
 @dataclass(frozen=True, eq=False)
@@ -243,59 +55,6 @@ class XPBDState:
     step: int
     positions: np.ndarray
     velocities: np.ndarray
-
-
-def cube_colors(model: CubeModel) -> np.ndarray:
-    """Colour 0..7 of each cube from the parities of its lattice index, shape (n,).
-
-    Two cubes of the same colour share no node."""
-    p = np.asarray(model.cells) % 2
-    return p[:, 0] * 4 + p[:, 1] * 2 + p[:, 2]
-
-
-def neohookean_terms(X: np.ndarray, h: float):
-    """Constraint values and gradients of the stable Neo-Hookean pair for a batch of cubes.
-
-    Parameters
-    ----------
-    X : ndarray, shape (n, 8, 3)
-        Corner positions (metres) in :data:`HEX_CORNERS` order.
-    h : float
-        Rest edge length, metres.
-
-    Returns
-    -------
-    CD : (n,) ``sqrt(mean |F|^2)``;  gD : (n, 8, 3) its gradient;
-    J : (n,) ``det F`` at the centre;  gH : (n, 8, 3) its gradient (``cof(F) grad N_a``).
-    """
-    n = X.shape[0]
-    LX = np.matmul(L_REF, X)                                       # (n, 8, 3)
-    CD = np.sqrt(np.maximum(np.einsum("ij,ij->i", X.reshape(n, 24), LX.reshape(n, 24)), 1e-300)) / h
-    gD = LX * (1.0 / (h * h * CD))[:, None, None]
-    J, gH = _volume_terms(X, h)
-    return CD, gD, J, gH
-
-
-def _as_fixed(fixed, n_nodes: int) -> np.ndarray:
-    """Boolean mask (m,) of fixed nodes from indices or a mask."""
-    if fixed is None:
-        return np.zeros(n_nodes, dtype=bool)
-    arr = np.asarray(fixed)
-    if arr.dtype == bool:
-        if arr.shape != (n_nodes,):
-            raise BoundaryConditionError(f"fixed mask must have shape ({n_nodes},), got {arr.shape}")
-        return arr.copy()
-    if arr.size == 0:
-        return np.zeros(n_nodes, dtype=bool)
-    if not np.issubdtype(arr.dtype, np.integer) or arr.ndim != 1:
-        raise BoundaryConditionError(f"fixed must be a 1-D array of node indices or a bool mask, "
-                                     f"got dtype {arr.dtype} shape {arr.shape}")
-    if arr.min() < 0 or arr.max() >= n_nodes:
-        raise BoundaryConditionError(f"fixed node indices must lie in [0, {n_nodes}), got range "
-                                     f"[{arr.min()}, {arr.max()}]")
-    mask = np.zeros(n_nodes, dtype=bool)
-    mask[arr] = True
-    return mask
 
 
 class XPBDSolver:
@@ -725,86 +484,8 @@ def simulate_xpbd(model: CubeModel, dt: float, n_steps: int, *, substeps: int = 
     yield from solver.run(n_steps, progress=progress)
 
 
-@dataclass(frozen=True)
-class StabilityRow:
-    """One row of :func:`stability_sweep`.
+def stability_sweep(*args, **kw):
+    """See :func:`sc_fem.dynamics.xpbd_stability.stability_sweep` (kept here for existing imports)."""
+    from .xpbd_stability import stability_sweep as sweep
 
-    Attributes
-    ----------
-    dt : float
-        Substep length, s.
-    max_energy_growth : float
-        ``max_t (E(t) - E(0)) / energy_scale`` (see :meth:`XPBDSolver.energy_growth`); ``inf``
-        when the run blew up.
-    blew_up : bool
-        :class:`~sc_fem.errors.InstabilityError` was raised.
-    error : float
-        ``|| u(end) - u_ref || / || u_ref ||`` over all nodes (``nan`` without a reference or
-        after a blow-up): the final displacement against a static reference (pass ``damping`` so
-        that the run settles, e.g. twice the first angular frequency).
-    ms_per_second : float
-        Wall milliseconds per simulated second.
-    """
-
-    dt: float
-    max_energy_growth: float
-    blew_up: bool
-    error: float
-    ms_per_second: float
-
-
-def stability_sweep(model: CubeModel, substep_sizes, *, duration: float = 0.5, frame_dt: float | None = None,
-                    fixed=None, reference=None, constraints: str = "neohookean", iterations: int = 1,
-                    gravity=(0.0, 0.0, -9.81), **kw) -> list[StabilityRow]:
-    """XPBD released from rest under gravity for each substep length: energy growth, blow-up, error.
-
-    Parameters
-    ----------
-    model : CubeModel
-    substep_sizes : sequence of float
-        Substep lengths, s (e.g. ``[1e-4, 4e-4, 1e-3, 4e-3, 16e-3]``).
-    duration : float
-        Simulated seconds per run.
-    frame_dt : float, optional
-        Frame step, s (default 1/60 s), rounded to a whole number of substeps; at least one
-        substep (so the frame step is the substep itself when the substep is longer).
-    fixed : array_like, optional
-        Fixed nodes (see :class:`XPBDSolver`).
-    reference : array_like, shape (m, 3), optional
-        Static displacement (m) to compare the final displacement with (see
-        :attr:`StabilityRow.error`).
-    constraints, iterations, gravity, **kw
-        Passed to :class:`XPBDSolver`.
-
-    Returns
-    -------
-    list of StabilityRow
-    """
-    import time as _time
-
-    duration = positive_scalar(duration, "duration")
-    if frame_dt is not None:
-        frame_dt = positive_scalar(frame_dt, "frame_dt")
-    ref = None if reference is None else as_points(reference, "reference")
-    rows = []
-    for ds in np.atleast_1d(np.asarray(substep_sizes, dtype=float)):
-        ds = positive_scalar(float(ds), "substep_sizes")
-        n_sub = max(1, int(round((1 / 60 if frame_dt is None else frame_dt) / ds)))
-        solver = XPBDSolver(model, ds * n_sub, substeps=n_sub, iterations=iterations, constraints=constraints,
-                            fixed=fixed, gravity=gravity, **kw)
-        n_steps = max(1, int(round(duration / solver.dt)))
-        growth, blew = -np.inf, False
-        t0 = _time.perf_counter()
-        try:
-            for _ in range(n_steps):
-                st = solver.step()
-                growth = max(growth, solver.last_energy_growth)
-        except InstabilityError:
-            blew, growth = True, np.inf
-        wall = _time.perf_counter() - t0
-        err = np.nan
-        if ref is not None and not blew:
-            err = float(np.linalg.norm(st.positions - solver.rest - ref) / np.linalg.norm(ref))
-        rows.append(StabilityRow(dt=float(ds), max_energy_growth=float(growth), blew_up=blew, error=err,
-                                 ms_per_second=1e3 * wall / (solver.time or 1.0)))
-    return rows
+    return sweep(*args, **kw)
