@@ -1,0 +1,67 @@
+"""Scene: one object carries mesh + lattice + embedding + fixed nodes through every solver."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+import sc_fem
+from sc_fem import Scene
+from sc_fem.errors import InputError
+
+
+def _mm_box():
+    """An off-origin box in millimetres (scale 1e-3), as users bring CAD parts."""
+    m = trimesh.creation.box(extents=(400.0, 100.0, 100.0))
+    m.apply_translation((1000.0, -250.0, 3000.0))
+    return m
+
+
+def test_maps_are_the_trilinear_map_and_its_transpose():
+    scene = Scene.from_mesh(_mm_box(), resolution=8, scale=1e-3, fix="x<min+1")
+    m, n = scene.model.n_nodes, len(scene.rest_vertices)
+    rng = np.random.default_rng(0)
+    u = rng.normal(size=(m, 3)) * 1e-3                       # metres
+    W = sc_fem.embed(scene.model, scene.rest_vertices).toarray()
+    np.testing.assert_allclose(scene.vertex_positions(u), scene.rest_vertices + W @ u / 1e-3, rtol=1e-12)
+    stack = rng.normal(size=(4, m, 3))
+    np.testing.assert_allclose(scene.vertex_displacements(stack)[2], W @ stack[2] / 1e-3, rtol=1e-12)
+    # forces go to the nodes by the transpose: the work f . du equals F . u for any u
+    f = rng.normal(size=(n, 3))
+    F = scene.forces_to_nodes(f)
+    assert np.sum(F * u) == pytest.approx(np.sum(f * (W @ u)), rel=1e-12)
+    # a rigid translation of the nodes moves every vertex by the same amount (rows of W sum to 1)
+    np.testing.assert_allclose(scene.vertex_displacements(np.tile([1e-3, 0, 0], (m, 1))),
+                               np.tile([1.0, 0, 0], (n, 1)), atol=1e-12)
+    assert len(scene.fixed) and np.all(scene.model.nodes[scene.fixed, 0] < scene.rest_vertices[:, 0].min() + 1)
+    with pytest.raises(InputError, match=r"u must have shape"):
+        scene.vertex_positions(np.zeros((m + 1, 3)))
+    with pytest.raises(InputError, match=r"f must have shape"):
+        scene.forces_to_nodes(np.zeros((n, 2)))
+
+
+def test_solvers_give_the_same_answers_from_a_scene():
+    scene = Scene.from_mesh("builtin:beam", resolution=10, fix="x<min+1e-6")
+    a = sc_fem.modal(scene, n_modes=3)
+    b = sc_fem.modal("builtin:beam", resolution=10, fix="x<min+1e-6", n_modes=3)
+    np.testing.assert_allclose(a.frequencies, b.frequencies, rtol=1e-9)
+    assert a.fixed == b.fixed and a.source == "builtin:beam" and a.modes.shape == b.modes.shape
+    s1 = sc_fem.solve_static(scene, gravity=(0, 0, -9.81))
+    s2 = sc_fem.solve_static(scene.model, fix="x<min+1e-6", gravity=(0, 0, -9.81), mesh="builtin:beam")
+    np.testing.assert_allclose(s1.vertex_displacements, s2.vertex_displacements, rtol=1e-9, atol=1e-15)
+    with pytest.raises(InputError, match="do not pass fix"):
+        sc_fem.modal(scene, fix="x<0")
+    with pytest.raises(InputError, match="do not pass mesh"):
+        sc_fem.solve_static(scene, mesh="builtin:beam")
+
+
+def test_default_supports_of_a_builtin_and_the_records():
+    scene = Scene.from_mesh("builtin:bridge", resolution=8, fix="default")
+    assert len(scene.fixed) > 0 and scene.fix_record()["n_nodes"] == len(scene.fixed)
+    assert scene.material_record()["mass"] == pytest.approx(scene.model.total_mass)
+    assert "builtin:bridge" in repr(scene)
+    with pytest.raises(sc_fem.BoundaryConditionError, match="builtin"):
+        Scene.from_mesh(_mm_box(), resolution=6, scale=1e-3, fix="default")
+    with pytest.raises(InputError, match="needs the source mesh"):
+        Scene.from_model(scene.model, fix_vertices=[0])
