@@ -80,3 +80,24 @@ def check_material(youngs: np.ndarray, poisson: np.ndarray, density: np.ndarray 
         density = np.asarray(density, dtype=float)
         if density.size and (not np.all(np.isfinite(density)) or np.any(density <= 0)):
             raise MaterialError(f"density must be > 0 kg/m^3 and finite{where}, got min {np.nanmin(density):g}")
+
+
+def as_indices(value: Any, n: int, name: str, *, allow_mask: bool = False, allow_empty: bool = True,
+               error: type = InputError) -> np.ndarray:
+    """Sorted-as-given int64 indices into ``range(n)`` from a 1-D integer array (or, with
+    ``allow_mask``, a bool mask of shape (n,)); ``error`` names the bad dtype, shape or range."""
+    arr = np.atleast_1d(np.asarray(value))
+    if allow_mask and arr.dtype == bool:
+        if arr.shape != (n,):
+            raise error(f"{name} as a mask must have shape ({n},), got {arr.shape}")
+        return np.flatnonzero(arr)
+    if arr.size == 0:
+        if not allow_empty:
+            raise error(f"{name} must not be empty")
+        return np.zeros(0, dtype=np.int64)
+    if arr.ndim != 1 or not np.issubdtype(arr.dtype, np.integer):
+        kind = "a 1-D integer array" + (" or a bool mask" if allow_mask else "")
+        raise error(f"{name} must be {kind}, got dtype {arr.dtype} shape {arr.shape}")
+    if arr.min() < 0 or arr.max() >= n:
+        raise error(f"{name} must lie in [0, {n}), got range [{arr.min()}, {arr.max()}]")
+    return arr.astype(np.int64)

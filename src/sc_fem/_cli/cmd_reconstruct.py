@@ -42,6 +42,12 @@ def register(subparsers) -> None:
     p.add_argument("--rigid-interpolation", choices=("cubic", "linear"), default="cubic")
     p.add_argument("--no-rigid", action="store_true", help="do not remove rigid motion (Eqs. 18-23)")
     p.add_argument("--n-control", type=int, default=50, help="B-spline control points per curve (50)")
+    p.add_argument("--segments", default="auto",
+                   help="PDE pieces per curve, or 'auto' (default): 1, 2, 4, ... until the PDE fits the fitted "
+                        "frames at least as well as the B-spline")
+    p.add_argument("--offset", choices=("auto", "none", "first"), default="auto",
+                   help="none (the paper): the PDE models the curves; first: their motion away from the first "
+                        "fitted frame (stored, 3 numbers per point more); auto (default): none, then first")
     p.set_defaults(func=run)
 
 
@@ -56,6 +62,18 @@ def parse_frames(text: str, n_frames: int) -> np.ndarray:
     return check_frame_indices(idx, n_frames, name="--fit-frames")
 
 
+def _segments(text: str):
+    if str(text).strip().lower() == "auto":
+        return "auto"
+    try:
+        n = int(text)
+    except ValueError:
+        raise InputError(f"--segments must be a positive integer or 'auto', got {text!r}") from None
+    if n < 1:
+        raise InputError(f"--segments must be >= 1, got {n}")
+    return n
+
+
 def run(args) -> int:
     from .._atomic import atomic_path
     from ..io.animation import load_animation
@@ -65,7 +83,8 @@ def run(args) -> int:
     result = reconstruct_animation(
         anim, parse_frames(args.fit_frames, anim.n_frames), n_curves=args.curves, n_points=args.points, r=args.r,
         alpha=args.alpha, parametrization=args.parametrization, criterion=args.criterion,
-        rigid_interpolation=args.rigid_interpolation, remove_rigid=not args.no_rigid, n_control=args.n_control)
+        rigid_interpolation=args.rigid_interpolation, remove_rigid=not args.no_rigid, n_control=args.n_control,
+        offset=args.offset, segments=_segments(args.segments))
     result = replace(result, meta={**result.meta, "source": str(args.animation)})
     save_reconstruction(args.output, result)
     if args.report:

@@ -26,7 +26,7 @@ from typing import Callable, Sequence
 import numpy as np
 import scipy.sparse as sp
 
-from .._validate import as_float_array, as_points
+from .._validate import as_float_array, as_indices, as_points
 from ..errors import InputError
 from ..lattice.cubes import CubeModel
 
@@ -164,12 +164,7 @@ class LoadSet:
 
     @staticmethod
     def _indices(idx, n: int, name: str) -> np.ndarray:
-        a = np.atleast_1d(np.asarray(idx))
-        if a.ndim != 1 or a.size == 0 or not np.issubdtype(a.dtype, np.integer):
-            raise InputError(f"{name} must be a non-empty 1-D integer array, got {a.dtype} {a.shape}")
-        if a.min() < 0 or a.max() >= n:
-            raise InputError(f"{name} indices must lie in [0, {n}), got range [{a.min()}, {a.max()}]")
-        return a.astype(np.int64)
+        return as_indices(idx, n, f"{name} indices", allow_empty=False)
 
     def force(self, t: float) -> np.ndarray:
         """Total node forces at time ``t`` (s), shape (m, 3), N."""

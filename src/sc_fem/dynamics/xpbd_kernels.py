@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validate import as_indices
 from ..errors import BoundaryConditionError
 from ..lattice.cubes import HEX_CORNERS, CubeModel
 from .corotational import DN_CENTRE, centre_F, cofactor, polar_rotation
@@ -143,21 +144,7 @@ def neohookean_terms(X: np.ndarray, h: float):
 
 def _as_fixed(fixed, n_nodes: int) -> np.ndarray:
     """Boolean mask (m,) of fixed nodes from indices or a mask."""
-    if fixed is None:
-        return np.zeros(n_nodes, dtype=bool)
-    arr = np.asarray(fixed)
-    if arr.dtype == bool:
-        if arr.shape != (n_nodes,):
-            raise BoundaryConditionError(f"fixed mask must have shape ({n_nodes},), got {arr.shape}")
-        return arr.copy()
-    if arr.size == 0:
-        return np.zeros(n_nodes, dtype=bool)
-    if not np.issubdtype(arr.dtype, np.integer) or arr.ndim != 1:
-        raise BoundaryConditionError(f"fixed must be a 1-D array of node indices or a bool mask, "
-                                     f"got dtype {arr.dtype} shape {arr.shape}")
-    if arr.min() < 0 or arr.max() >= n_nodes:
-        raise BoundaryConditionError(f"fixed node indices must lie in [0, {n_nodes}), got range "
-                                     f"[{arr.min()}, {arr.max()}]")
     mask = np.zeros(n_nodes, dtype=bool)
-    mask[arr] = True
+    if fixed is not None:
+        mask[as_indices(fixed, n_nodes, "fixed node indices", allow_mask=True, error=BoundaryConditionError)] = True
     return mask

@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .._validate import as_float_array
+from .._validate import as_float_array, as_indices
 from .elements import (CENTRE_RULE, DEFAULT_ELEMENT, check_element, cube_stiffness_chunks, moment_mass,
                        reference_mass, stiffness_chunks)
 from ..errors import InputError
@@ -42,18 +42,7 @@ _PAIR_OFFSET = np.ravel_multi_index((HEX_CORNERS[None, :, :] - HEX_CORNERS[:, No
 def _check_fixed(fixed_dofs, n_dofs: int) -> np.ndarray:
     if fixed_dofs is None:
         return np.zeros(0, dtype=np.int64)
-    arr = np.asarray(fixed_dofs)
-    if arr.dtype == bool:
-        if arr.shape != (n_dofs,):
-            raise InputError(f"fixed_dofs as a mask must have shape ({n_dofs},), got {arr.shape}")
-        return np.flatnonzero(arr)
-    if arr.size == 0:
-        return np.zeros(0, dtype=np.int64)
-    if arr.ndim != 1 or not np.issubdtype(arr.dtype, np.integer):
-        raise InputError(f"fixed_dofs must be a 1-D integer array (or a bool mask), got {arr.dtype} {arr.shape}")
-    if arr.min() < 0 or arr.max() >= n_dofs:
-        raise InputError(f"fixed_dofs must lie in [0, {n_dofs}), got range [{arr.min()}, {arr.max()}]")
-    return np.unique(arr.astype(np.int64))
+    return np.unique(as_indices(fixed_dofs, n_dofs, "fixed_dofs", allow_mask=True))
 
 
 def _per_cube(value, name: str, n: int, *, scalar: bool = True) -> np.ndarray:

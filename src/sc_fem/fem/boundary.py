@@ -23,7 +23,7 @@ from typing import Callable, Iterable, Union
 
 import numpy as np
 
-from .._validate import as_points
+from .._validate import as_indices, as_points
 from ..errors import BoundaryConditionError, InputError
 from ..lattice.cubes import CubeModel
 
@@ -198,13 +198,8 @@ def fixed_nodes(model: CubeModel, fix: Iterable[Fix] | Fix | None = None, *, ver
             raise BoundaryConditionError("vertices= needs mesh_vertices= (the source-mesh vertex positions)")
         mv = None if mesh_embedding is not None else as_points(mesh_vertices, "mesh_vertices")
         n_v = len(mesh_embedding.cube) if mv is None else len(mv)
-        idx = np.asarray(vertices)
-        if idx.ndim != 1 or idx.size == 0 or not np.issubdtype(idx.dtype, np.integer):
-            raise BoundaryConditionError(f"vertices must be a non-empty 1-D integer array, got {idx.dtype} {idx.shape}")
-        if idx.min() < 0 or idx.max() >= n_v:
-            raise BoundaryConditionError(
-                f"vertex indices must lie in [0, {n_v}) for a mesh of {n_v} vertices, "
-                f"got range [{idx.min()}, {idx.max()}]")
+        idx = as_indices(vertices, n_v, f"vertex indices (a mesh of {n_v} vertices)", allow_empty=False,
+                         error=BoundaryConditionError)
         if mv is None:
             cubes = mesh_embedding.cube[idx]
         else:

@@ -407,7 +407,11 @@ def moment_mass(moments: np.ndarray, masses: np.ndarray) -> np.ndarray:
     from ..lattice.moments import FULL
 
     M = np.asarray(moments, dtype=np.float64)
-    M = M + 1e-8 * M[:, :1] * FULL       # round-off in the moments of slivers must not make M indefinite
+    # round-off in the moments of slivers must not make M indefinite, and (as for the stiffness) a
+    # node that only a sliver reaches keeps FCM_ALPHA of a full cube's mass shape: the cube's
+    # mass is unchanged (normalised below) but M stays invertible (measured: the chair at
+    # resolution 10 had a 726 x 726 M that Cholesky called singular without it)
+    M = M + 1e-8 * M[:, :1] * FULL + FCM_ALPHA * (M[:, :1] < 1.0 - 1e-12) * FULL
     unit = M @ _polynomial_parts("q1")["mass"].reshape(27, -1)          # integral of N N^T over the fill
     return unit * (np.asarray(masses, dtype=np.float64) / M[:, 0])[:, None]
 

@@ -138,5 +138,8 @@ def bspline_baseline(curves, times, fit_frames, n_control: int = 50, u=None) -> 
     mean = np.maximum(diag.mean(axis=-1), 1e-300)
     starved = diag.min(axis=-1) < 1e-6 * mean              # only systems with a basis function (nearly) without data
     scale = np.where(starved, PENALTY * mean, 0.0)[..., None, None]
-    ctrl = np.linalg.solve(ata + scale * (d2.T @ d2), atb)
+    # and a ridge far below round-off of the data keeps every system invertible (a curve whose
+    # points bunch into fewer spans than control points, as in bridge cables at resolution 10)
+    ridge = 1e-12 * mean[..., None, None] * np.eye(n_control)
+    ctrl = np.linalg.solve(ata + scale * (d2.T @ d2) + ridge, atb)
     return BSplineModel(control_points=ctrl, knots=knots, u=u, fit_times=t[idx])

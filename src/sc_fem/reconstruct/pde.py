@@ -70,6 +70,9 @@ class PDEModel:
     residual_rms : float
         RMS point-coordinate residual over the fitted frames (aligned frame, model units).
     search : SearchResult or None
+    reference : ndarray, shape (C, P, 3) or None
+        With ``offset="first"``: the aligned curves at the first fitted frame; the PDE then
+        models the motion away from them (``w = reference + sum C T U``).
     """
 
     coefficients: np.ndarray
@@ -83,6 +86,7 @@ class PDEModel:
     parametrization: str
     residual_rms: float
     search: SearchResult | None = None
+    reference: np.ndarray | None = None
 
     @property
     def n_curves(self) -> int:
@@ -102,7 +106,7 @@ class PDEModel:
     def n_parameters(self) -> int:
         """True scalar count: coefficients + (r, alpha) + rigid motion (u values not counted, see
         :attr:`n_parameter_values`)."""
-        return self.n_coefficients + 2 + self.n_rigid
+        return self.n_coefficients + 2 + self.n_rigid + (0 if self.reference is None else int(self.reference.size))
 
     @property
     def n_parameter_values(self) -> int:
@@ -127,6 +131,8 @@ class PDEModel:
         tb = time_basis(s.ravel(), self.alpha)                     # (nt, 4)
         ub = space_basis(self.u, self.r)                           # (C, P, 8)
         out = np.einsum("ti,cwij,cpj->tcpw", tb, self.coefficients, ub)
+        if self.reference is not None:
+            out = out + self.reference[None]
         return out[0] if t_arr.ndim == 0 else out
 
     def evaluate(self, t, normalized: bool = False) -> np.ndarray:
@@ -304,11 +310,14 @@ def _check_times(times, n_frames: int) -> np.ndarray:
     return t
 
 
+OFFSETS = ("none", "first")
+
+
 def fit(curves, times, r: float | None = None, alpha: float | None = None, remove_rigid: bool = True,
         parametrization: str = "paper", u=None, *, rigid_interpolation: str = "cubic",
         criterion: str = "residual", r_bounds: tuple[float, float] = (0.2, 30.0),
         alpha_bounds: tuple[float, float] | None = None, grid: tuple[int, int] = (14, 14),
-        rcond: float = 1e-11) -> PDEModel:
+        rcond: float = 1e-11, offset: str = "none") -> PDEModel:
     """Fit the PDE model of Eq. 17 to curves at the fitted (key) frames.
 
     Parameters
@@ -337,6 +346,11 @@ def fit(curves, times, r: float | None = None, alpha: float | None = None, remov
         Coarse grid size (log-spaced) before the bounded refinement.
     rcond : float
         Relative cut-off on the singular values of the column-scaled Kronecker design matrix.
+    offset : {"none", "first"}
+        ``"none"`` (the paper): Eq. 17 models the aligned curves themselves. ``"first"``: it
+        models their motion away from the first fitted frame, which is stored (``3 P`` more
+        numbers per curve, counted in :attr:`PDEModel.n_parameters`) -- for curves whose rest
+        shape 8 smooth space functions cannot follow (curves extracted from an arbitrary mesh).
 
     Returns
     -------
@@ -351,6 +365,8 @@ def fit(curves, times, r: float | None = None, alpha: float | None = None, remov
         raise InputError(f"rigid_interpolation must be one of {RIGID_INTERPOLATIONS}, got {rigid_interpolation!r}")
     if criterion not in CRITERIA:
         raise InputError(f"criterion must be one of {CRITERIA}, got {criterion!r}")
+    if offset not in OFFSETS:
+        raise InputError(f"offset must be one of {OFFSETS}, got {offset!r}")
     if criterion == "loo" and n_f < 3:
         raise InputError("criterion='loo' needs at least 3 fitted frames")
     r = None if r is None else positive_scalar(r, "r")
@@ -368,6 +384,9 @@ def fit(curves, times, r: float | None = None, alpha: float | None = None, remov
     else:
         uu = check_u(u, n_c, n_p)
         pname = "explicit"
+    reference = aligned[0].copy() if offset == "first" else None
+    if reference is not None:
+        aligned = aligned - reference[None]
     data = np.ascontiguousarray(aligned.transpose(1, 3, 0, 2))    # (C, 3, F, P)
     search = None
     space_of = _SpaceCache(data, uu)
@@ -382,5 +401,5 @@ def fit(curves, times, r: float | None = None, alpha: float | None = None, remov
     rms = float(np.sqrt(np.mean((fitted - data) ** 2)))
     return PDEModel(coefficients=coef, r=float(r), alpha=float(alpha), u=uu, t0=float(t[0]),
                     t1=float(t[-1]), fit_times=t, rigid=rigid, parametrization=pname,
-                    residual_rms=rms, search=search)
+                    residual_rms=rms, search=search, reference=reference)
 

@@ -76,8 +76,9 @@ class Reconstruction:
 
     def summary(self) -> str:
         """One line: mean E_A and max E_M of both methods and the PDE's rates."""
+        pieces = self.meta.get("segments", 1)
         return (f"PDE: mean E_A {self.E_A_pde.mean():.6f}, max E_M {self.E_M_pde.max():.6f} (r={self.r:.4g}, "
-                f"alpha={self.alpha:.4g}); B-spline: mean E_A {self.E_A_bspline.mean():.6f}, "
+                f"alpha={self.alpha:.4g}, {pieces} piece{'s' if pieces != 1 else ''} per curve); B-spline: mean E_A {self.E_A_bspline.mean():.6f}, "
                 f"max E_M {self.E_M_bspline.max():.6f}")
 
 
@@ -89,7 +90,7 @@ _OPTIONAL = ("vertices_pde", "mesh_error_pde", "curve_vertex_index")
 def reconstruct_animation(animation, fit_frames, *, n_curves: int = 8, n_points: int = 64, r=None, alpha=None,
                           parametrization: str = "paper", criterion: str = "residual",
                           rigid_interpolation: str = "cubic", remove_rigid: bool = True,
-                          n_control: int = 50) -> Reconstruction:
+                          n_control: int = 50, offset: str = "auto", segments="auto") -> Reconstruction:
     """Reconstruct ``animation`` from ``fit_frames`` with the PDE model and the B-spline baseline.
 
     Parameters
@@ -104,34 +105,64 @@ def reconstruct_animation(animation, fit_frames, *, n_curves: int = 8, n_points:
         PDE rates (searched when omitted).
     parametrization, criterion, rigid_interpolation, remove_rigid
         See :func:`sc_fem.reconstruct.fit`.
+    offset : {"auto", "none", "first"}
+        See :func:`sc_fem.reconstruct.fit`; ``"auto"`` tries ``"none"`` (the paper) then ``"first"``
+        at every number of pieces.
     n_control : int
         B-spline control points per curve (capped at the points per curve).
+    segments : int or "auto"
+        Cut every curve into this many pieces, each with its own Eq. 17 model
+        (:mod:`.segments`). ``"auto"``: 1, 2, 4, ... pieces (and both offsets) until the PDE fits the fitted frames
+        at least as well as the B-spline baseline (mean E_A and max E_M), or as finely as the
+        points allow; ``meta["segments"]`` and ``meta["pde_matches_bspline_at_fitted_frames"]`` say
+        what happened.
     """
     from ..io.animation import Animation, load_animation
     from .bspline import bspline_baseline
     from .meshmap import curve_mesh_map, extract_curves, mesh_vertices
     from .metrics import errors
-    from .pde import check_frame_indices, fit
+    from .pde import check_frame_indices
+    from .segments import fit_segmented, max_segments
 
     anim = animation if isinstance(animation, Animation) else load_animation(animation)
     fit_idx = check_frame_indices(np.asarray(fit_frames), anim.n_frames, name="fit_frames")
     frames = np.arange(fit_idx[0], fit_idx[-1] + 1)
     curves, idx = anim.curves, None
     if curves is None:
-        idx = extract_curves(anim.rest_vertices, n_curves, n_points)
-        curves = anim.positions[:, idx].astype(np.float64)                # (T, C, P, 3)
+        rest, moving = anim.rest_vertices, anim.positions
+        if len(rest) < n_curves * n_points and len(anim.faces):
+            # too few vertices for the curves (a box of 8): curves through points on the surface,
+            # each moving with the vertices of its triangle (barycentric, fixed per point)
+            rest, moving = _surface_points(anim, n_curves * n_points)
+        idx = extract_curves(rest, n_curves, n_points)
+        curves = moving[:, idx].astype(np.float64)                          # (T, C, P, 3)
     times = np.asarray(anim.times, dtype=float)
-    t0 = time.perf_counter()
-    model = fit(curves[fit_idx], times[fit_idx], r=r, alpha=alpha, remove_rigid=remove_rigid,
-                parametrization=parametrization, rigid_interpolation=rigid_interpolation, criterion=criterion)
-    pde_curves = model.evaluate(times[frames])
-    t_pde = time.perf_counter() - t0
     t0 = time.perf_counter()
     bs = bspline_baseline(curves, times, fit_idx, n_control=min(int(n_control), curves.shape[2]))
     bs_curves = bs.evaluate(times[frames])
     t_bs = time.perf_counter() - t0
     ref = curves[frames]
-    e_pde, e_bs = errors(ref, pde_curves), errors(ref, bs_curves)
+    e_bs = errors(ref, bs_curves)
+    fitted = np.isin(frames, fit_idx)
+    n_p = curves.shape[2]
+    if segments == "auto":
+        top = max_segments(n_p)
+        tries = sorted({*(2 ** k for k in range(8) if 2 ** k < top), top})
+    else:
+        tries = [int(segments)]
+    offsets = ("none", "first") if offset == "auto" else (offset,)
+    t0 = time.perf_counter()
+    for n_seg, off in ((n, o) for n in tries for o in offsets):   # a handful of refinements
+        model = fit_segmented(curves[fit_idx], times[fit_idx], n_seg, r=r, alpha=alpha, remove_rigid=remove_rigid,
+                              parametrization=parametrization, rigid_interpolation=rigid_interpolation,
+                              criterion=criterion, offset=off)
+        pde_curves = model.evaluate(times[frames])
+        e_pde = errors(ref, pde_curves)
+        matches = bool(e_pde.E_A[fitted].mean() <= e_bs.E_A[fitted].mean()
+                       and e_pde.E_M[fitted].max() <= e_bs.E_M[fitted].max())
+        if matches:
+            break
+    t_pde = time.perf_counter() - t0
     extra = {}
     if idx is not None:
         f0 = fit_idx[0]
@@ -141,18 +172,37 @@ def reconstruct_animation(animation, fit_frames, *, n_curves: int = 8, n_points:
         extra = dict(curve_vertex_index=idx, vertices_pde=verts.astype(np.float32),
                      mesh_error_pde=np.linalg.norm(verts - anim.positions[frames], axis=-1).mean(axis=1) / diag)
     counts = {"PDE scalars (coefficients + r, alpha + rigid)": int(model.n_parameters),
-              "PDE constants, paper's count (32 per curve)": 32 * int(model.n_curves),
+              "PDE constants, paper's count (32 per curve piece)": 32 * int(model.model.n_curves),
               "B-spline scalars": int(bs.n_parameters), "B-spline control points (paper's count)": int(bs.n_control_points),
               "reference scalars (curve points x 3 x frames)": int(ref.size)}
     meta = {"source": str(anim.meta.get("source", "")) if isinstance(animation, Animation) else str(animation),
             "timings_s": {"pde": t_pde, "bspline": t_bs}, "counts": counts, "criterion": criterion,
             "rigid_interpolation": rigid_interpolation, "remove_rigid": bool(remove_rigid),
-            "parametrization": model.parametrization, "curves_extracted": idx is not None}
+            "parametrization": model.parametrization, "curves_extracted": idx is not None, "offset": off,
+            "segments": int(model.n_segments), "pde_matches_bspline_at_fitted_frames": matches}
     return Reconstruction(frames=frames, times=times[frames], fit_frames=fit_idx, curves_reference=ref,
                           curves_pde=pde_curves, curves_bspline=bs_curves, E_A_pde=e_pde.E_A, E_M_pde=e_pde.E_M,
                           E_A_bspline=e_bs.E_A, E_M_bspline=e_bs.E_M, r=float(model.r), alpha=float(model.alpha),
                           coefficients=model.coefficients, u=model.u, faces=np.asarray(anim.faces), meta=meta,
                           **extra)
+
+
+def _surface_points(anim, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` points spread over the animated surface by area: rest (n, 3) and per frame (T, n, 3)."""
+    faces = np.asarray(anim.faces, dtype=np.int64)
+    tri = anim.rest_vertices[faces]                                       # (f, 3, 3)
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    if not area.sum() > 0:
+        raise InputError("the animated mesh has no surface area to put curves on")
+    rng = np.random.default_rng(seed)
+    face = rng.choice(len(faces), size=n, p=area / area.sum())
+    a, b = rng.random(n), rng.random(n)
+    flip = a + b > 1.0
+    a, b = np.where(flip, 1.0 - a, a), np.where(flip, 1.0 - b, b)
+    bary = np.stack([1.0 - a - b, a, b], axis=1)                          # (n, 3)
+    rest = np.einsum("nk,nkd->nd", bary, tri[face])
+    moving = np.einsum("nk,tnkd->tnd", bary, np.asarray(anim.positions, dtype=float)[:, faces[face]])
+    return rest, moving
 
 
 def save_reconstruction(path, result: Reconstruction) -> Path:
@@ -205,7 +255,10 @@ def markdown_report(result: Reconstruction) -> str:
               "| quantity | value |", "|---|---:|"]
     c = res.curves_reference.shape
     rows = {"curves x points": f"{c[1]} x {c[2]}" + (" (extracted)" if res.meta.get("curves_extracted") else " (stored)"),
-            "r": f"{res.r:.4g}", "alpha": f"{res.alpha:.4g}", "parametrization": res.meta.get("parametrization", "")}
+            "r": f"{res.r:.4g}", "alpha": f"{res.alpha:.4g}", "parametrization": res.meta.get("parametrization", ""),
+            "PDE pieces per curve": res.meta.get("segments", 1), "PDE offset": res.meta.get("offset", "none"),
+            "PDE fits the fitted frames at least as well as the B-spline":
+                res.meta.get("pde_matches_bspline_at_fitted_frames", "")}
     if res.mesh_error_pde is not None:
         rows["mesh mean vertex error / bbox diagonal (PDE, max over frames)"] = f"{np.max(res.mesh_error_pde):.6f}"
     t = res.meta.get("timings_s", {})
