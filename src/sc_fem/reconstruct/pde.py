@@ -130,7 +130,7 @@ class PDEModel:
             raise InputError("t must be finite")
         tb = time_basis(s.ravel(), self.alpha)                     # (nt, 4)
         ub = space_basis(self.u, self.r)                           # (C, P, 8)
-        out = np.einsum("ti,cwij,cpj->tcpw", tb, self.coefficients, ub)
+        out = np.einsum("ti,cwij,cpj->tcpw", tb, self.coefficients, ub, optimize=True)
         if self.reference is not None:
             out = out + self.reference[None]
         return out[0] if t_arr.ndim == 0 else out
@@ -158,7 +158,7 @@ def _svd(a: np.ndarray):
     return q, sv, vt, n
 
 
-def _space_side(x: np.ndarray, u: np.ndarray, r: float):
+def _space_side(x: np.ndarray, u: np.ndarray, r: float, xx: np.ndarray | None = None):
     """SVD of the space basis and the data in its orthonormal coordinates (reused across alpha).
 
     Returns ``(qu, su, vtu, un)``, ``xu`` (C, 3, F, 8) and ``out_u`` (F,): the squared data norm
@@ -166,8 +166,11 @@ def _space_side(x: np.ndarray, u: np.ndarray, r: float):
     """
     qu, su, vtu, un = _svd(space_basis(u, r))
     xu = x @ qu[:, None]                                                 # (C, 3, F, 8)
-    out = x - xu @ np.swapaxes(qu, -1, -2)[:, None]
-    return (qu, su, vtu, un), xu, np.einsum("cwfp,cwfp->f", out, out)
+    # qu has orthonormal columns: |x - qu qu^T x|^2 = |x|^2 - |qu^T x|^2 per frame (no (C, 3, F, P) temporary)
+    if xx is None:
+        xx = np.einsum("cwfp,cwfp->f", x, x)
+    out = xx - np.einsum("cwfj,cwfj->f", xu, xu)
+    return (qu, su, vtu, un), xu, np.maximum(out, 0.0)
 
 
 def _time_side(s: np.ndarray, alpha: float, criterion: str):
@@ -235,6 +238,7 @@ class _SpaceCache:
 
     def __init__(self, x: np.ndarray, u: np.ndarray, size: int = 4) -> None:
         self.x, self.u, self.size = x, u, size
+        self.xx = np.einsum("cwfp,cwfp->f", x, x)                   # |x|^2 per frame, for every r
         self._store: dict[float, tuple] = {}
 
     def __call__(self, r: float):
@@ -242,7 +246,7 @@ class _SpaceCache:
         if key not in self._store:
             if len(self._store) >= self.size:
                 self._store.pop(next(iter(self._store)))
-            self._store[key] = _space_side(self.x, self.u, key)
+            self._store[key] = _space_side(self.x, self.u, key, self.xx)
         return self._store[key]
 
 
@@ -269,7 +273,7 @@ def _search(x, s, space_of: _SpaceCache, r, alpha, bounds_r, bounds_a, grid, rco
 
     f0 = f(start[free])
     res = minimize(f, start[free], method="L-BFGS-B", bounds=[tuple(lims[k]) for k in free],
-                   options={"ftol": 1e-14, "gtol": 1e-10, "maxiter": 200})
+                   options={"ftol": 1e-8, "gtol": 1e-6, "maxiter": 40})
     best = start.copy()
     if res.fun < f0:
         best[free] = res.x
@@ -311,6 +315,9 @@ def _check_times(times, n_frames: int) -> np.ndarray:
 
 
 OFFSETS = ("none", "first")
+
+ALPHA_LOW = 0.05
+"""Lower bound of the alpha search (1 / unit normalised time)."""
 
 
 def fit(curves, times, r: float | None = None, alpha: float | None = None, remove_rigid: bool = True,
@@ -392,7 +399,7 @@ def fit(curves, times, r: float | None = None, alpha: float | None = None, remov
     space_of = _SpaceCache(data, uu)
     if r is None or alpha is None:
         ds = float(np.max(np.diff(s)))
-        ab = alpha_bounds if alpha_bounds is not None else (0.05, np.pi / ds)
+        ab = alpha_bounds if alpha_bounds is not None else (ALPHA_LOW, np.pi / ds)
         if not (0 < r_bounds[0] < r_bounds[1] and 0 < ab[0] < ab[1]):
             raise InputError(f"bounds must be 0 < low < high, got r_bounds={r_bounds}, alpha_bounds={ab}")
         r, alpha, search = _search(data, s, space_of, r, alpha, r_bounds, ab, grid, rcond, criterion)
