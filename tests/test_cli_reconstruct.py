@@ -58,7 +58,7 @@ def test_cli_reconstruct_uses_stored_curves(tmp_path):
     _tube_animation(anim, extra=lambda pos: pos.reshape(len(pos), 40, 12, 3).transpose(0, 2, 1, 3)[:, :3])
     out = tmp_path / "recon.npz"
     assert main(["reconstruct", str(anim), "--fit-frames", "0,5,10", "-o", str(out), "--n-control", "10",
-                 "--parametrization", "arclength", "--r", "1.5"]) == 0
+                 "--parametrization", "arclength", "--r", "1.5", "--segments", "1", "--offset", "none"]) == 0
     from sc_fem import reconstruct as rec
     from sc_fem.io.animation import load_animation
 
