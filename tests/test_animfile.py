@@ -21,7 +21,7 @@ def test_round_trip_with_curves(tmp_path, rng):
     p = save_animation(tmp_path / "a.npz", **a, extra={"curves": curves})
     b = load_animation(p)
     np.testing.assert_allclose(b.positions, a["positions"], rtol=1e-6)
-    assert b.positions.dtype == np.float32 and b.meta == {"method": "x"} and b.n_frames == 4
+    assert b.positions.dtype == np.float64 and b.meta == {"method": "x"} and b.n_frames == 4
     with np.load(p) as z:
         np.testing.assert_array_equal(z["curves"], curves)
     assert b.curves is not None and b.curves.dtype == np.float64
@@ -72,9 +72,34 @@ def test_corrupted_truncated_foreign(tmp_path, rng):
     np.savez(tmp_path / "v.npz", **d)
     with pytest.raises(FileFormatError, match="format_version 99"):
         load_animation(tmp_path / "v.npz")
-    d["format_version"] = np.int64(1)
-    d["positions"] = d["positions"].copy()
-    d["positions"][0, 0, 0] = np.nan
+    d["format_version"] = np.int64(2)
+    d["displacements"] = d["displacements"].copy()
+    d["displacements"][0, 0, 0] = np.nan
     np.savez(tmp_path / "n.npz", **d)
     with pytest.raises(FileFormatError, match="non-finite"):
         load_animation(tmp_path / "n.npz")
+
+
+def test_displacements_keep_their_precision_far_from_the_origin(tmp_path, rng):
+    """Version 2 stores float32 displacements: a model 1 km from the origin moving by 10 um keeps
+    them to float32 precision (version 1's float32 positions lost most of such a motion)."""
+    a = _anim(rng, n=50)
+    rest = a["rest_vertices"] + 1000.0
+    disp = 1e-5 * rng.normal(size=(4, 50, 3))
+    b = load_animation(save_animation(tmp_path / "a.npz", **dict(a, rest_vertices=rest, positions=rest[None] + disp)))
+    rel = np.abs(b.positions - b.rest_vertices[None] - disp).max() / np.abs(disp).max()
+    assert rel < 1e-6
+    v1 = np.abs((rest[None] + disp).astype(np.float32).astype(np.float64) - rest[None] - disp).max() / np.abs(disp).max()
+    assert v1 > 0.1                                       # what the old schema did to the same motion
+
+
+def test_version_1_files_are_still_read(tmp_path, rng):
+    import json
+
+    a = _anim(rng)
+    np.savez(tmp_path / "v1.npz", format_version=np.int64(1), kind=np.str_("sc_fem.animation"), faces=a["faces"],
+             rest_vertices=a["rest_vertices"], times=a["times"], positions=a["positions"].astype(np.float32),
+             energy=a["energy"], meta_json=np.str_(json.dumps(a["meta"])))
+    b = load_animation(tmp_path / "v1.npz")
+    np.testing.assert_allclose(b.positions, a["positions"], rtol=1e-6, atol=1e-6)
+    assert b.meta == {"method": "x"}

@@ -11,7 +11,7 @@ import numpy as np
 from ..errors import FileFormatError
 
 
-def read_versioned_npz(path, *, kind: str, version: int, what: str) -> dict[str, np.ndarray]:
+def read_versioned_npz(path, *, kind: str, version: int | tuple[int, ...], what: str) -> dict[str, np.ndarray]:
     """All arrays of ``path`` after checking it exists, unzips, and has the right kind and version.
 
     Parameters
@@ -19,8 +19,8 @@ def read_versioned_npz(path, *, kind: str, version: int, what: str) -> dict[str,
     path : str or Path
     kind : str
         Expected value of the ``kind`` key (e.g. ``"sc_fem.modes"``).
-    version : int
-        Expected ``format_version``.
+    version : int or tuple of int
+        Expected ``format_version`` (or the versions this sc_fem reads).
     what : str
         Human name of the file type for messages (``"mode file"``, ...).
 
@@ -45,6 +45,8 @@ def read_versioned_npz(path, *, kind: str, version: int, what: str) -> dict[str,
         got = int(data["format_version"])
     except (KeyError, TypeError, ValueError):
         got = -1
-    if got != version:
-        raise FileFormatError(f"{path}: unsupported {what} format_version {got} (this sc_fem reads version {version})")
+    versions = (version,) if isinstance(version, int) else tuple(version)
+    if got not in versions:
+        raise FileFormatError(f"{path}: unsupported {what} format_version {got} (this sc_fem reads version "
+                              f"{' or '.join(map(str, versions))})")
     return data

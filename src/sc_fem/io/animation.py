@@ -1,16 +1,19 @@
 """Vertex-animation files (``.npz``): what ``sc-fem simulate`` writes and ``sc-fem reconstruct`` reads.
 
-Schema (``format_version`` 1):
+Schema (``format_version`` 2; version 1 files, which stored absolute ``positions`` in float32,
+are still read):
 
 =================  ===============  =====================================================
 key                shape / dtype    meaning
 =================  ===============  =====================================================
-format_version     () int           1
+format_version     () int           2
 kind               () str           ``"sc_fem.animation"``
 faces              (m, 3) int64     source-mesh triangles (may be (0, 3) for point sets)
 rest_vertices      (n, 3) float64   rest positions, model units
 times              (T,) float64     seconds, strictly increasing
-positions          (T, n, 3) f32    vertex positions per frame, model units
+displacements      (T, n, 3) f32    vertex positions minus rest positions, model units
+                                    (float32 relative to the motion, not to the model's
+                                    size or its offset from the origin)
 energy             (T,) float64     kinetic + elastic + gravity potential, J (NaN if unknown)
 meta_json          () str           JSON dict: method, dt, material, source, ...
 curves (optional)  (T, C, P, 3) f8  curves on the surface (e.g. the XPBD rope's 24 x 832), model units
@@ -33,7 +36,8 @@ from ._npz import read_versioned_npz
 from .._validate import as_float_array
 from ..errors import InputError, FileFormatError
 
-ANIMATION_FORMAT_VERSION = 1
+ANIMATION_FORMAT_VERSION = 2
+ANIMATION_READS = (1, 2)
 ANIMATION_KIND = "sc_fem.animation"
 
 
@@ -85,7 +89,8 @@ def _check(faces, rest, times, positions, energy) -> None:
         raise InputError("faces index vertices that do not exist")
 
 
-_RESERVED = {"format_version", "kind", "faces", "rest_vertices", "times", "positions", "energy", "meta_json"}
+_RESERVED = {"format_version", "kind", "faces", "rest_vertices", "times", "positions", "displacements", "energy",
+             "meta_json"}
 
 
 def save_animation(path, *, faces, rest_vertices, times, positions, energy=None, meta=None,
@@ -106,7 +111,7 @@ def save_animation(path, *, faces, rest_vertices, times, positions, energy=None,
         raise InputError(f"extra arrays may not use the reserved keys {sorted(clash)}")
     return save_npz_atomic(
         path, format_version=np.int64(ANIMATION_FORMAT_VERSION), kind=np.str_(ANIMATION_KIND),
-        faces=faces, rest_vertices=rest, times=times, positions=positions.astype(np.float32),
+        faces=faces, rest_vertices=rest, times=times, displacements=(positions - rest[None]).astype(np.float32),
         energy=energy, meta_json=np.str_(json.dumps(meta or {}, default=str)),
         **{k: np.asarray(v) for k, v in extra.items()},
     )
@@ -122,13 +127,18 @@ def load_animation(path) -> Animation:
         or an optional ``curves`` array of the wrong shape or with non-finite values.
     """
     path = Path(path)
-    data = read_versioned_npz(path, kind=ANIMATION_KIND, version=ANIMATION_FORMAT_VERSION,
-                              what="animation file")
-    missing = {"faces", "rest_vertices", "times", "positions", "energy"} - set(data)
+    data = read_versioned_npz(path, kind=ANIMATION_KIND, version=ANIMATION_READS, what="animation file")
+    motion = "positions" if int(data["format_version"]) == 1 else "displacements"
+    missing = {"faces", "rest_vertices", "times", motion, "energy"} - set(data)
     if missing:
         raise FileFormatError(f"{path}: missing keys {sorted(missing)}")
     faces, rest, times = data["faces"], data["rest_vertices"], data["times"]
-    positions, energy = data["positions"], data["energy"]
+    energy = data["energy"]
+    positions = data[motion].astype(np.float64)
+    if motion == "displacements":
+        if positions.ndim != 3 or positions.shape[1:] != rest.shape:
+            raise FileFormatError(f"{path}: displacements must have shape (T, {len(rest)}, 3), got {positions.shape}")
+        positions = rest[None] + positions
     try:
         _check(faces, rest, times, positions, energy)
     except InputError as exc:
@@ -156,20 +166,38 @@ ANIMATION_OUTPUTS = (".npz", ".xdmf", ".mp4", ".gif")
 
 
 def write_xdmf(path, rest: np.ndarray, faces: np.ndarray, times, positions) -> Path:
-    """XDMF time series (XML data, no HDF5 needed): the rest mesh and point data ``displacement``
-    (model units) per time; written atomically."""
+    """XDMF time series for ParaView: the rest mesh and point data ``displacement`` (model units)
+    per time, the arrays in an HDF5 file beside it (``NAME.h5``; inline XML of a large run is more
+    than VTK's XML reader takes). Both files appear together or not at all."""
+    import os
+    import shutil
+    import tempfile
+
     import meshio
 
-    from .._atomic import atomic_path
+    from ..errors import OutputError
 
     path = Path(path)
     cells = [("triangle", np.asarray(faces, dtype=np.int64))] if len(faces) else \
         [("vertex", np.arange(len(rest), dtype=np.int64)[:, None])]
-    with atomic_path(path, suffix=".xdmf") as tmp:
-        with meshio.xdmf.TimeSeriesWriter(str(tmp), data_format="XML") as w:
-            w.write_points_cells(np.asarray(rest, dtype=float), cells)
-            for t, p in zip(times, positions):         # loop over frames
-                w.write_data(float(t), point_data={"displacement": np.asarray(p, dtype=float) - rest})
+    tmpdir = Path(tempfile.mkdtemp(prefix=f".{path.stem}.", dir=path.parent))
+    try:
+        cwd = os.getcwd()
+        os.chdir(tmpdir)                      # meshio names the .h5 after the .xdmf, relative to it
+        try:
+            with meshio.xdmf.TimeSeriesWriter(path.name, data_format="HDF") as w:
+                w.write_points_cells(np.asarray(rest, dtype=float), cells)
+                for t, p in zip(times, positions):         # loop over frames
+                    w.write_data(float(t), point_data={"displacement": np.asarray(p, dtype=float) - rest})
+        finally:
+            os.chdir(cwd)
+        h5 = path.with_suffix(".h5")
+        os.replace(tmpdir / h5.name, h5)
+        os.replace(tmpdir / path.name, path)
+    except OSError as exc:
+        raise OutputError(f"cannot write {path}: {exc}") from None
+    finally:
+        shutil.rmtree(tmpdir, ignore_errors=True)
     return path
 
 
