@@ -24,8 +24,9 @@ def register(sub) -> None:
     p = sub.add_parser(
         "simulate", help="time integration (Newmark, corotational, central differences) with loads and contact",
         description="Simulate MESH as elastic cubes for DURATION seconds with step DT and write the source "
-                    "mesh's vertex animation: .npz (sc_fem.io.animation), .xdmf (ParaView time series, point data "
-                    "'displacement' in model units: apply Warp By Vector), or a rendered .mp4/.gif. "
+                    "mesh's vertex animation: .npz (sc_fem.io.animation), .xdmf (ParaView time series with its arrays "
+                    "in NAME.h5 beside it, point data 'displacement' in model units: apply Warp By Vector), or a "
+                    "rendered .mp4/.gif. "
                     "A run that blows up stops with the time step and dt_crit and writes nothing.")
     add_mesh_arg(p)
     add_grid_args(p, method_flags=("--voxel-method",))
