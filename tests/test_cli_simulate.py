@@ -141,3 +141,14 @@ def test_element_option_lists_the_library_elements(capsys):
     with pytest.raises(SystemExit):
         main(["simulate", "--help"])
     assert f"(default {DEFAULT_ELEMENT})" in capsys.readouterr().out
+
+
+def test_up_axis_turns_gravity_and_the_ground(tmp_path):
+    """A y-up model: --up y pulls it down -y and the ground is a height along y."""
+    out = tmp_path / "y.npz"
+    assert main(["simulate", "builtin:beam", "-r", "8", "--fix", "default", "--gravity", "--up", "y",
+                 "--ground", "-0.06", "--duration", "0.02", "--dt", "1e-3", "-o", str(out), "--quiet"]) == 0
+    a = load_animation(out)
+    d = a.positions[-1] - a.rest_vertices
+    assert d[:, 1].min() < 0 and np.abs(d[:, 2]).max() < 1e-3 * np.abs(d[:, 1]).max()
+    assert a.meta["up"] == "y" and a.meta["ground"] == -0.06

@@ -51,7 +51,7 @@ def _rope_reconstruction(out: Path) -> list[Path]:
                           times=scene.times, positions=scene.vertex_positions,
                           meta={"method": "xpbd", "scene": "rope"}, extra={"curves": scene.curves})
     gif = render_animation(scene.vertex_positions, scene.faces, out / "rope_xpbd.gif", fps=10,
-                           window_size=(640, 480), title="XPBD cube-rope, frames 0-10")
+                           window_size=(640, 480), title="XPBD cube-rope, frames 0-10", times=scene.times)
     recon, report = out / "rope_reconstruction.npz", out / "rope_reconstruction.md"
     result = reconstruct_animation(anim, [0, 2, 4, 6, 8, 10])
     save_reconstruction(recon, result)

@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import add_element_arg, add_fix_args, add_grid_args, add_material_args, add_mesh_arg, stage, voxelize_options
+from .common import (add_element_arg, add_fix_args, add_grid_args, add_material_args, add_mesh_arg, add_up_arg, stage,
+                     voxelize_options)
 
 
 def register(sub) -> None:
@@ -67,6 +68,7 @@ def register(sub) -> None:
     q.add_argument("--fps", type=float, default=30.0, help="frames per second (default 30)")
     q.add_argument("--exaggerate", type=float, default=1.0, help="multiply displacements for display (default 1)")
     q.add_argument("-o", "--output", default=None, help="out.mp4, out.gif or a folder for PNG frames")
+    add_up_arg(q)
     q.add_argument("--quiet", "-q", action="store_true", help="print only errors")
     q.set_defaults(func=run_play)
 
@@ -76,6 +78,7 @@ def register(sub) -> None:
     s.add_argument("-o", "--output", required=True, help="output .png")
     s.add_argument("--count", "-n", type=int, default=6, help="number of modes shown (default 6)")
     s.add_argument("--columns", type=int, default=None, help="panels per row (default 3)")
+    add_up_arg(s)
     s.add_argument("--quiet", "-q", action="store_true", help="print only errors")
     s.set_defaults(func=run_sheet)
 
@@ -222,7 +225,7 @@ def run_play(args) -> int:
         print(f"sc-fem play: warning: {w}", file=sys.stderr)
     title = f"{b.source}: {b.n_modes} modes, {b.frequencies[0]:.3g}..{b.frequencies[-1]:.3g} Hz"
     path = render_animation(np.asarray(frames), b.faces, args.output, fps=args.fps, title=title,
-                            progress=not args.quiet)
+                            progress=not args.quiet, times=np.arange(len(frames)) / args.fps, up=args.up)
     if not args.quiet:
         print(f"wrote {path} ({len(frames)} frames at {args.fps:g} fps)")
     return 0
@@ -255,7 +258,7 @@ def run_sheet(args) -> int:
     from ..modes.player import modes_sheet
 
     basis = load_modes(args.modes)
-    path = modes_sheet(basis, args.output, n_modes=args.count, columns=args.columns)
+    path = modes_sheet(basis, args.output, n_modes=args.count, columns=args.columns, up=args.up)
     if not args.quiet:
         print(f"wrote {path} ({min(args.count, basis.n_modes)} modes)")
     return 0
@@ -293,5 +296,5 @@ def demo_modal(out_dir, *, resolution: int = 24, n_modes: int = 8) -> list[Path]
     frames = basis.vertices[None] + exaggerate * disp
     written.append(render_animation(frames, basis.faces, out / "chair_play.gif", fps=15.0,
                                     title=f"chair: impulse on the backrest (x{exaggerate:.3g})",
-                                    window_size=(480, 360)))
+                                    window_size=(480, 360), times=np.arange(len(frames)) / 15.0))
     return written

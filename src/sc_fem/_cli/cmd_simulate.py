@@ -17,7 +17,7 @@ import numpy as np
 from .._validate import positive_scalar
 from ..errors import InputError, RenderError
 from .common import (add_element_arg, add_fix_args, add_grid_args, add_material_args, add_mesh_arg,
-                     model_summary, scene_from_args, stage)
+                     add_up_arg, model_summary, scene_from_args, stage)
 
 
 def register(sub) -> None:
@@ -48,9 +48,10 @@ def register(sub) -> None:
     p.add_argument("--hht-alpha", type=float, default=0.0, help="HHT alpha in [-1/3, 0] (numerical damping)")
     p.add_argument("--rayleigh", type=float, nargs=2, default=(0.0, 0.0), metavar=("A0", "A1"),
                    help="Rayleigh damping C = A0 M + A1 K (A0 in 1/s, A1 in s)")
-    p.add_argument("--gravity", action="store_true", help="gravity 9.81 m/s^2 along -z")
+    p.add_argument("--gravity", action="store_true", help="gravity 9.81 m/s^2 down the --up axis (default -z)")
     p.add_argument("--ground", type=float, default=None, metavar="Z",
-                   help="ground plane z = Z (model units): source vertices stay above it")
+                   help="ground plane at height Z along the --up axis (model units): source vertices stay above it")
+    add_up_arg(p)
     p.add_argument("--sphere", type=float, nargs=4, default=None, metavar=("X", "Y", "Z", "R"),
                    help="static sphere obstacle (model units)")
     p.add_argument("--box", type=float, nargs=6, default=None, metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"),
@@ -92,7 +93,7 @@ def run(args) -> int:
             gust=args.gust, ground=args.ground, sphere=args.sphere, box=args.box, impulses=args.impulse,
             rayleigh=args.rayleigh, newmark=NewmarkOptions(beta=args.beta, gamma=args.gamma, alpha=args.hht_alpha),
             xpbd=XPBDOptions(substeps=args.substeps, iterations=args.iterations, constraints=args.constraints,
-                             damping=args.xpbd_damping), element=args.element, progress=progress)
+                             damping=args.xpbd_damping), element=args.element, up=args.up, progress=progress)
     with stage("write", timings, q):
         write_animation(out, scene, rec, exaggerate=args.magnify, fps=args.fps, progress=progress)
     for w in rec.info["warnings"]:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .common import add_grid_args, add_material_args, add_mesh_arg, model_summary, stage
+from .common import add_grid_args, add_material_args, add_mesh_arg, add_up_arg, model_summary, stage
 
 
 def register(sub) -> None:
@@ -16,6 +16,7 @@ def register(sub) -> None:
     add_grid_args(p)
     add_material_args(p)
     p.add_argument("-o", "--output", required=True, help="output file: .png, .npz or .vtu")
+    add_up_arg(p)
     p.add_argument("--quiet", "-q", action="store_true", help="print only errors")
     p.set_defaults(func=run)
 
@@ -39,7 +40,7 @@ def run(args) -> int:
         if out.suffix.lower() == ".png":
             from ..io.render import plot_cubes_over_mesh
 
-            plot_cubes_over_mesh(model, mesh, out)
+            plot_cubes_over_mesh(model, mesh, out, up=args.up)
         else:
             save_model(model, out)
     if not args.quiet:

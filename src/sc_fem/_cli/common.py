@@ -121,6 +121,13 @@ def add_fix_args(p: argparse.ArgumentParser) -> None:
                    help="text file of source-mesh vertex indices (one a line); their cubes' nodes are fixed")
 
 
+def add_up_arg(p: argparse.ArgumentParser) -> None:
+    """``--up x|y|z``: the model's up axis (pictures draw it upward; gravity and the ground use it)."""
+    p.add_argument("--up", choices=("x", "y", "z"), default="z",
+                   help="the model's up axis (default z; many OBJ/glTF models are y-up): pictures draw it upward, "
+                        "--gravity pulls down it and --ground is a height along it")
+
+
 def add_element_arg(p: argparse.ArgumentParser) -> None:
     """``--element`` with the element types of :data:`sc_fem.fem.elements.ELEMENTS`."""
     from ..fem.elements import DEFAULT_ELEMENT, ELEMENTS

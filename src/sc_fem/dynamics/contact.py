@@ -56,15 +56,17 @@ TOL_FRACTION = 1e-6
 
 @dataclass(frozen=True)
 class Ground:
-    """The ground: everything below ``z`` (model units) is solid; normal +z."""
+    """The ground: everything below the plane ``p[axis] = z`` (model units) is solid; normal
+    ``+axis`` (``axis`` 2 for a z-up model, 1 for y-up)."""
 
     z: float = 0.0
+    axis: int = 2
 
     def depth(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Signed depth (n,) model units (> 0 below the plane) and normal (n, 3)."""
         n = np.zeros_like(p)
-        n[:, 2] = 1.0
-        return self.z - p[:, 2], n
+        n[:, self.axis] = 1.0
+        return self.z - p[:, self.axis], n
 
 
 @dataclass(frozen=True)
@@ -255,11 +257,12 @@ class Contact:
         return u, v, ContactInfo(n_active=active0, max_depth=d_after, passes=passes)
 
 
-def obstacles_from(ground=None, sphere=None, box=None) -> list:
-    """Obstacles from plain numbers: ``ground`` Z, ``sphere`` (x, y, z, r), ``box`` (x0, y0, z0, x1, y1, z1)."""
+def obstacles_from(ground=None, sphere=None, box=None, *, up: int = 2) -> list:
+    """Obstacles from plain numbers: ``ground`` height along the ``up`` axis (0, 1, 2), ``sphere``
+    (x, y, z, r), ``box`` (x0, y0, z0, x1, y1, z1)."""
     obs = []
     if ground is not None:
-        obs.append(Ground(float(ground)))
+        obs.append(Ground(float(ground), int(up)))
     if sphere is not None:
         s = as_float_array(sphere, "sphere", (4,))
         obs.append(Sphere(tuple(s[:3]), positive_scalar(s[3], "sphere radius")))

@@ -16,6 +16,15 @@ ENERGY_GAIN_WARN = 0.05
 GRAVITY = 9.81
 """m/s^2."""
 
+AXES = "xyz"
+
+
+def up_axis(up: str) -> int:
+    """0, 1 or 2 for ``"x"``, ``"y"``, ``"z"`` (the model's up direction)."""
+    if up not in ("x", "y", "z"):
+        raise InputError(f"up must be 'x', 'y' or 'z', got {up!r}")
+    return AXES.index(up)
+
 
 @dataclass(frozen=True)
 class XPBDOptions:
@@ -55,7 +64,8 @@ def impulse_nodes(scene, impulses) -> np.ndarray | None:
 def run_simulation(scene, *, dt: float, duration: float, method: str = "newmark", fps: float = 50.0,
                    gravity: bool = False, gust=None, ground=None, sphere=None, box=None, impulses=(),
                    rayleigh=(0.0, 0.0), newmark: NewmarkOptions = NewmarkOptions(),
-                   xpbd: XPBDOptions = XPBDOptions(), element: str | None = None, progress: bool = False):
+                   xpbd: XPBDOptions = XPBDOptions(), element: str | None = None, up: str = "z",
+                   progress: bool = False):
     """Simulate ``scene`` for ``duration`` s with step ``dt`` and record its source vertices.
 
     Parameters
@@ -67,11 +77,12 @@ def run_simulation(scene, *, dt: float, duration: float, method: str = "newmark"
     fps : float
         Frames per second recorded.
     gravity : bool
-        Gravity 9.81 m/s^2 along -z.
+        Gravity 9.81 m/s^2 along -``up``.
     gust : (Fx, Fy, Fz, seconds), optional
         Total force (N) spread equally over the source vertices, half-sine pulse.
     ground, sphere, box : optional
-        Obstacles in model units: plane ``z = ground``, ``(x, y, z, r)``, ``(x0, y0, z0, x1, y1, z1)``.
+        Obstacles in model units: the plane at height ``ground`` along ``up``, ``(x, y, z, r)``,
+        ``(x0, y0, z0, x1, y1, z1)``.
     impulses : sequence of (vertex, Jx, Jy, Jz)
         Impulses in N s on source vertices at t = 0.
     rayleigh : (a0, a1)
@@ -79,6 +90,8 @@ def run_simulation(scene, *, dt: float, duration: float, method: str = "newmark"
     newmark, xpbd : NewmarkOptions, XPBDOptions
     element : str, optional
         Element type (default :data:`sc_fem.DEFAULT_ELEMENT`).
+    up : {"x", "y", "z"}
+        The model's up axis: gravity points down it, the ground is across it (y-up meshes: "y").
 
     Returns
     -------
@@ -100,8 +113,9 @@ def run_simulation(scene, *, dt: float, duration: float, method: str = "newmark"
         raise InputError(f"duration {duration:g} s is shorter than one step of dt {dt:g} s")
     every = max(1, int(round(1.0 / (fps * dt))))
     model, verts = scene.model, scene.rest_vertices
-    g = (0.0, 0.0, -GRAVITY) if gravity else (0.0, 0.0, 0.0)
-    obstacles = obstacles_from(ground, sphere, box)
+    a = up_axis(up)
+    g = tuple(-GRAVITY if gravity and k == a else 0.0 for k in range(3))
+    obstacles = obstacles_from(ground, sphere, box, up=a)
     if method == "xpbd":
         unsupported = [name for name, on in (
             ("gust", gust is not None), ("impulse", bool(len(impulses))), ("ground", ground is not None),
@@ -140,7 +154,8 @@ def run_simulation(scene, *, dt: float, duration: float, method: str = "newmark"
                         + (" (use more substeps)" if method == "xpbd" else " (reduce dt)"))
     info = {"method": method, "dt": dt, "duration": duration, "n_steps": n_steps, "source": scene.source,
             "element": element, "material": model.info.get("material", ""), "gravity": bool(gravity),
-            "ground": ground, "rayleigh": [float(x) for x in rayleigh], "hht_alpha": newmark.alpha,
+            "ground": ground, "up": up, "sphere": None if sphere is None else [float(x) for x in sphere],
+            "box": None if box is None else [float(x) for x in box], "rayleigh": [float(x) for x in rayleigh], "hht_alpha": newmark.alpha,
             "dt_crit": dtc, "scale": model.scale, "cubes": model.n_cubes, **rec.info,
             "implicit": bool(integ.implicit), "warnings": warnings,
             "contact_tol": None if getattr(integ, "contact", None) is None else float(integ.contact.tol)}

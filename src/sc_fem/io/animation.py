@@ -219,6 +219,12 @@ def write_animation(path, scene, rec, *, exaggerate: float = 1.0, fps: float = 5
         return write_xdmf(path, rest, faces, rec.times, rec.points)
     from .render import render_animation
 
+    from ..dynamics.contact import obstacles_from
+
+    info = rec.info
+    up = str(info.get("up", "z"))
+    obstacles = obstacles_from(info.get("ground"), info.get("sphere"), info.get("box"), up="xyz".index(up))
     frames = rest[None] + exaggerate * (rec.points - rest[None])
     title = title or f"{scene.source} {rec.method}" + (f" (x{exaggerate:g})" if exaggerate != 1 else "")
-    return render_animation(frames, faces, path, fps=min(fps, 30.0), title=title, progress=progress)
+    return render_animation(frames, faces, path, fps=min(fps, 30.0), title=title, progress=progress,
+                            times=rec.times, up=up, obstacles=obstacles)

@@ -26,6 +26,7 @@ fixed_json           () str            fixed-node description: ``--fix`` specs, 
 source               () str            source file name or ``builtin:NAME``
 source_sha256        () str            SHA-256 of the source file (or of its arrays)
 meta_json            () str            solver report, timings, resolution table, cube/DOF counts
+fixed_points         optional (q, 3)   positions of the fixed lattice nodes, model units
 lattice_*            optional          the lattice (``keep_lattice``): cells, origin, pitch, scale,
                                        dims, mass, youngs, poisson, density, node_modes (k, m, 3) f32
 ===================  ================  ==========================================================
@@ -82,6 +83,8 @@ def save_modes(basis: ModalBasis, path) -> Path:
         source=np.str_(basis.source), source_sha256=np.str_(basis.source_sha256),
         meta_json=np.str_(json.dumps(meta, default=_json_default)),
     )
+    if basis.fixed_points is not None and len(basis.fixed_points):
+        arrays["fixed_points"] = np.asarray(basis.fixed_points, dtype=np.float64).reshape(-1, 3)
     if basis.lattice is not None and basis.node_modes is not None:
         lat = basis.lattice
         arrays.update(lattice_cells=lat.cells, lattice_origin=lat.origin, lattice_pitch=np.float64(lat.pitch),
@@ -200,4 +203,14 @@ def load_modes(path) -> ModalBasis:
         material=material, fixed=fixed, source=str(data["source"]), source_sha256=str(data["source_sha256"]),
         n_cubes=int(meta.get("n_cubes", 0)), n_dofs=int(meta.get("n_dofs", 0)), eigen=meta.get("eigen", {}),
         timings=meta.get("timings", {}), resolution_table=meta.get("resolution_table"),
-        lattice=lattice, node_modes=node_modes)
+        lattice=lattice, node_modes=node_modes,
+        fixed_points=_fixed_points(data, path))
+
+
+def _fixed_points(data: dict, path) -> np.ndarray | None:
+    if "fixed_points" not in data:
+        return None
+    fp = data["fixed_points"]
+    if fp.ndim != 2 or fp.shape[1] != 3 or not np.all(np.isfinite(fp)):
+        raise FileFormatError(f"{path}: fixed_points must be finite with shape (q, 3), got {fp.shape}")
+    return fp.astype(np.float64)

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .._atomic import atomic_path
+from .._validate import as_float_array
 from ..errors import InputError, RenderError
 from ..lattice.cubes import CubeModel
 
@@ -102,6 +103,49 @@ def cubes_grid(model: CubeModel, node_positions: np.ndarray | None = None):
     return grid
 
 
+def view_vectors(up: str = "z") -> tuple[np.ndarray, np.ndarray]:
+    """Camera direction (from the focal point to the camera) and view-up for a model whose up
+    axis is ``up``: a three-quarter view from above, the up axis drawn upward."""
+    if up not in ("x", "y", "z"):
+        raise InputError(f"up must be 'x', 'y' or 'z', got {up!r}")
+    a = "xyz".index(up)
+    e = np.eye(3)
+    h1, h2 = e[(a + 1) % 3], e[(a + 2) % 3]
+    return 1.0 * h1 - 1.3 * h2 + 0.9 * e[a], e[a]
+
+
+def frame_camera(plotter, points: np.ndarray, up: str = "z", margin: float = 0.08) -> None:
+    """Point the camera so that every point of ``points`` (k, 3) -- e.g. all frames of an animation
+    together, obstacles included -- is in the picture, with ``margin`` of the view to spare."""
+    pts = np.asarray(points, dtype=float).reshape(-1, 3)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    direction, view_up = view_vectors(up)
+    plotter.camera_position = [tuple((lo + hi) / 2 + direction), tuple((lo + hi) / 2), tuple(view_up)]
+    plotter.reset_camera(bounds=(lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]))
+    plotter.camera.zoom(1.0 - margin)
+
+
+def obstacle_meshes(obstacles, around: np.ndarray) -> list:
+    """pyvista meshes of contact obstacles (:mod:`sc_fem.dynamics.contact`) to draw; the ground is a
+    square 1.5x the horizontal size of ``around`` (k, 3) points."""
+    pvm = pv()
+    from ..dynamics.contact import Box, Ground, Sphere
+
+    lo, hi = np.min(around, axis=0), np.max(around, axis=0)
+    out = []
+    for ob in obstacles:                                # a few obstacles
+        if isinstance(ob, Ground):
+            c = (lo + hi) / 2
+            c[ob.axis] = ob.z
+            size = 1.5 * float(np.max(np.delete(hi - lo, ob.axis)))
+            out.append(pvm.Plane(center=c, direction=np.eye(3)[ob.axis], i_size=size, j_size=size))
+        elif isinstance(ob, Sphere):
+            out.append(pvm.Sphere(radius=ob.radius, center=ob.center))
+        elif isinstance(ob, Box):
+            out.append(pvm.Box(bounds=(ob.lo[0], ob.hi[0], ob.lo[1], ob.hi[1], ob.lo[2], ob.hi[2])))
+    return out
+
+
 def write_png(plotter, path) -> Path:
     """Screenshot of a pyvista ``plotter`` written atomically to ``path`` (PNG); returns the path."""
     path = Path(path)
@@ -111,8 +155,9 @@ def write_png(plotter, path) -> Path:
 
 
 def plot_cubes_over_mesh(model: CubeModel, mesh, path, *, title: str | None = None,
-                         window_size=(1200, 900)) -> Path:
-    """Write a PNG of the cube lattice (translucent, with edges) over the source mesh."""
+                         window_size=(1200, 900), up: str = "z") -> Path:
+    """Write a PNG of the cube lattice (translucent, with edges) over the source mesh, the whole
+    of both in the picture, ``up`` drawn upward."""
     pvm = pv()
     path = Path(path)
     p = pvm.Plotter(off_screen=True, window_size=tuple(window_size))
@@ -122,9 +167,7 @@ def plot_cubes_over_mesh(model: CubeModel, mesh, path, *, title: str | None = No
         p.add_mesh(cubes_grid(model), color="#3a7bd5", opacity=0.35, show_edges=True, edge_color="#1b3a66")
         text = title or f"{model.info.get('source', '')}: {model.n_cubes} cubes, pitch {model.pitch:.3g}"
         p.add_text(text, font_size=10, color="black")
-        p.view_vector((1.0, -1.3, 0.9))
-        p.reset_camera()
-        p.camera.zoom(1.25)
+        frame_camera(p, np.vstack([model.nodes, np.asarray(mesh.vertices, dtype=float)]), up)
         return write_png(p, path)
     finally:
         p.close()
@@ -132,7 +175,8 @@ def plot_cubes_over_mesh(model: CubeModel, mesh, path, *, title: str | None = No
 
 def render_animation(frames: np.ndarray, faces: np.ndarray, path, *, fps: float = 30.0,
                      window_size=(960, 720), color: str = "#d9822b", scalars: np.ndarray | None = None,
-                     title: str | None = None, progress: bool = False) -> Path:
+                     title: str | None = None, progress: bool = False, times=None, up: str = "z",
+                     obstacles=()) -> Path:
     """Render a vertex animation to ``.mp4``, ``.gif`` or a folder of PNG frames.
 
     Parameters
@@ -144,6 +188,15 @@ def render_animation(frames: np.ndarray, faces: np.ndarray, path, *, fps: float 
         ``*.mp4``, ``*.gif`` or a directory (created; frames ``frame_00000.png``, ...).
     fps : float
         Frames per second of the video.
+    times : array_like, shape (T,), optional
+        Simulated time of each frame, s: stamped in a corner of every frame.
+    up : {"x", "y", "z"}
+        The model's up axis (drawn upward).
+    obstacles : sequence
+        Contact obstacles (:mod:`sc_fem.dynamics.contact`) to draw.
+
+    The camera is fixed and frames every position of every frame (and the obstacles near the
+    model), so nothing leaves the picture.
     """
     frames = np.asarray(frames, dtype=float)
     if frames.ndim != 3 or frames.shape[2] != 3 or len(frames) == 0:
@@ -157,19 +210,30 @@ def render_animation(frames: np.ndarray, faces: np.ndarray, path, *, fps: float 
 
     mesh = surface_polydata(frames[0], faces)
     p = pvm.Plotter(off_screen=True, window_size=tuple(window_size))
+    stamps = None if times is None else as_float_array(times, "times", (len(frames),))
     lo, hi = frames.min(axis=(0, 1)), frames.max(axis=(0, 1))
     try:
         p.set_background("white")
         p.add_mesh(mesh, color=color, smooth_shading=False)
+        for ob in obstacle_meshes(obstacles, np.vstack([lo, hi])):
+            p.add_mesh(ob, color="#9aa5b1", opacity=0.6)
         if title:
             p.add_text(title, font_size=10, color="black")
-        p.view_isometric()
-        p.reset_camera(bounds=(lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]))
+        box = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        ground = [ob for ob in obstacles if type(ob).__name__ == "Ground"]
+        if ground:                                    # keep the ground line in view under the model
+            g = box.copy()
+            g[:, ground[0].axis] = ground[0].z
+            box = np.vstack([box, g])
+        frame_camera(p, box, up)
         from tqdm import tqdm
 
         images = []
         for k in tqdm(range(len(frames)), desc="render", disable=not progress, file=sys.stderr):
             mesh.points = frames[k]
+            if stamps is not None:
+                p.add_text(f"t = {stamps[k]:.3f} s", position="lower_right", font_size=10, color="black",
+                           name="clock")
             p.render()
             images.append(p.screenshot(return_img=True))
     finally:

@@ -121,6 +121,8 @@ class ModalBasis:
         The lattice (``keep_lattice=True`` only).
     node_modes : ndarray, shape (k, m, 3) or None
         Modes at the lattice nodes, m kg^-1/2 (``keep_lattice=True`` only).
+    fixed_points : ndarray, shape (q, 3) or None
+        Positions of the fixed lattice nodes, model units (drawn on mode sheets).
     """
 
     frequencies: np.ndarray
@@ -147,6 +149,7 @@ class ModalBasis:
     resolution_table: list | None = None
     lattice: CubeModel | None = None
     node_modes: np.ndarray | None = None
+    fixed_points: np.ndarray | None = None
 
     @property
     def n_modes(self) -> int:
@@ -350,7 +353,7 @@ def finish(s: _Solved, kw: dict, timings: dict, resolution_table: list | None = 
         material=scene.material_record(), fixed=scene.fix_record(),
         source=scene.source, source_sha256=scene.sha256, n_cubes=model.n_cubes, n_dofs=model.n_dofs, eigen=s.info,
         timings=timings, resolution_table=resolution_table, lattice=model if keep else None,
-        node_modes=node_modes if keep else None)
+        node_modes=node_modes if keep else None, fixed_points=model.nodes[scene.fixed])
 
 
 def modal(model: Any, *, n_modes: int | None = None, max_frequency: float | None = None, mesh: Any = None,

@@ -209,14 +209,15 @@ class ModalPlayer:
 
 # ---------------------------------------------------------------------------------------- pictures
 def modes_sheet(basis: ModalBasis, path, *, n_modes: int = 6, columns: int | None = None,
-                amplitude: float = 0.08, window_size: tuple[int, int] | None = None) -> Path:
+                amplitude: float = 0.08, window_size: tuple[int, int] | None = None, up: str = "z") -> Path:
     """Write a PNG grid of the first mode shapes with their frequencies (pyvista off-screen).
 
-    Each panel shows the rest shape (grey wireframe-free, translucent) and the mode displaced so that
-    its largest vertex displacement is ``amplitude`` times the bounding-box diagonal, coloured by
-    displacement magnitude.
+    Each panel shows the rest shape (grey, translucent) and the mode displaced so that its largest
+    vertex displacement is ``amplitude`` times the bounding-box diagonal, coloured by the mode's
+    displacement magnitude ``|phi|`` in m kg^-1/2 (per unit modal coordinate; colour bar per
+    panel), the fixed lattice nodes as red points, ``up`` drawn upward.
     """
-    from ..io.render import pv, surface_polydata, write_png
+    from ..io.render import frame_camera, pv, surface_polydata, write_png
 
     k = min(positive_int(n_modes, "n_modes"), basis.n_modes)
     cols = columns or min(k, 3)
@@ -234,14 +235,24 @@ def modes_sheet(basis: ModalBasis, path, *, n_modes: int = 6, columns: int | Non
             mag = np.linalg.norm(shape, axis=1)
             s = amplitude * diag / max(float(mag.max()), 1e-300)
             p.add_mesh(surface_polydata(rest, basis.faces), color="#bbbbbb", opacity=0.25)
-            surf = surface_polydata(rest + s * shape, basis.faces)
-            surf["displacement"] = mag / max(float(mag.max()), 1e-300)
-            p.add_mesh(surf, scalars="displacement", cmap="viridis", show_scalar_bar=False,
-                       point_size=4, render_points_as_spheres=True)
+            moved = rest + s * shape
+            surf = surface_polydata(moved, basis.faces)
+            label = f"|phi{i}| m/kg^.5"                      # one bar per panel (bars are keyed by title)
+            surf[label] = mag
+            p.add_mesh(surf, scalars=label, cmap="viridis", point_size=4, render_points_as_spheres=True,
+                       clim=(0.0, max(float(mag.max()), 1e-300)),
+                       scalar_bar_args={"title": label, "vertical": True, "color": "black",
+                                        "position_x": 0.8, "position_y": 0.08, "height": 0.6, "width": 0.08,
+                                        "fmt": "%.2g", "n_labels": 3, "title_font_size": 11, "label_font_size": 10})
+            drawn = [rest, moved]
+            if basis.fixed_points is not None and len(basis.fixed_points):
+                p.add_points(np.asarray(basis.fixed_points), color="red", point_size=6,
+                             render_points_as_spheres=True)
+                drawn.append(basis.fixed_points)
             tag = " (rigid)" if basis.rigid[i] else ""
-            p.add_text(f"mode {i}: {basis.frequencies[i]:.4g} Hz{tag}", font_size=10, color="black")
-            p.view_isometric()
-            p.reset_camera()
+            held = "" if basis.fixed_points is None or not len(basis.fixed_points) else "; red: fixed nodes"
+            p.add_text(f"mode {i}: {basis.frequencies[i]:.4g} Hz{tag}{held}", font_size=9, color="black")
+            frame_camera(p, np.vstack(drawn), up, margin=0.15)
         return write_png(p, path)
     finally:
         p.close()
