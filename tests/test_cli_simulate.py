@@ -150,5 +150,5 @@ def test_up_axis_turns_gravity_and_the_ground(tmp_path):
                  "--ground", "-0.06", "--duration", "0.02", "--dt", "1e-3", "-o", str(out), "--quiet"]) == 0
     a = load_animation(out)
     d = a.positions[-1] - a.rest_vertices
-    assert d[:, 1].min() < 0 and np.abs(d[:, 2]).max() < 1e-3 * np.abs(d[:, 1]).max()
+    assert d[:, 1].min() < 0 and np.abs(d[:, 2]).max() < 0.02 * np.abs(d[:, 1]).max()     # (Poisson: 0.7 %)
     assert a.meta["up"] == "y" and a.meta["ground"] == -0.06
