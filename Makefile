@@ -6,7 +6,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
 OUT    ?= out
 
-.PHONY: demo test venv bench clean
+.PHONY: demo test venv bench notebooks clean
 
 $(STAMP): pyproject.toml Makefile
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -26,6 +26,9 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	for f in benchmarks/[a-z]*.py; do $(PY) $$f $(BENCH_ARGS) || exit 1; done
+
+notebooks: $(STAMP)
+	$(PY) notebooks/execute.py           # re-execute and store the outputs (plots) in place
 
 clean:
 	rm -rf $(VENV) $(OUT) benchmarks/out build src/*.egg-info

@@ -1,0 +1,43 @@
+"""Execute the notebooks and store their outputs in place (so the plots show on a code host).
+
+    .venv/bin/python notebooks/execute.py            # all notebooks
+    .venv/bin/python notebooks/execute.py 03*.ipynb  # some
+
+``make test`` executes them again (nbmake) without writing; run this after changing one.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+import nbformat
+from nbclient import NotebookClient
+
+HERE = Path(__file__).resolve().parent
+
+
+def execute(path: Path) -> None:
+    nb = nbformat.read(path, as_version=4)
+    NotebookClient(nb, timeout=1200, kernel_name="python3", resources={"metadata": {"path": str(HERE)}}).execute()
+    for cell in nb.cells:                                     # stable files: no execution timing noise
+        cell.metadata.pop("execution", None)
+    fd, tmp = tempfile.mkstemp(suffix=".ipynb", dir=path.parent)
+    os.close(fd)
+    try:
+        nbformat.write(nb, tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    print(f"executed {path.name} ({path.stat().st_size // 1024} KiB)")
+
+
+if __name__ == "__main__":
+    os.environ.pop("MPLBACKEND", None)             # the inline backend, so the plots are stored
+    names = sys.argv[1:] or sorted(p.name for p in HERE.glob("*.ipynb"))
+    for name in names:
+        for p in sorted(HERE.glob(name)):
+            execute(p)
