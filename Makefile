@@ -4,9 +4,10 @@ PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
+VIEWER := src/sc_fem/io/_viewer/viewer.js
 OUT    ?= out
 
-.PHONY: demo test venv bench notebooks clean
+.PHONY: demo test venv viewer bench notebooks clean
 
 $(STAMP): pyproject.toml Makefile
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -14,14 +15,22 @@ $(STAMP): pyproject.toml Makefile
 	$(PY) -m pip install -q -e ".[test]"
 	@# optional fast sparse Cholesky (CHOLMOD); sc_fem falls back to scipy when it is absent
 	-bash .ci/install-cholmod.sh $(PY)
+	@# headless Chromium for the web viewer's browser test (Debian packages; skipped where impossible)
+	-bash .ci/install-browser.sh
 	touch $(STAMP)
+
+# the web viewer's JavaScript (three.js from the npm registry, bundled by esbuild)
+$(VIEWER): src/sc_fem/io/_viewer/main.js .ci/build-viewer.sh
+	-bash .ci/build-viewer.sh
+
+viewer: $(VIEWER)
 
 venv: $(STAMP)
 
-demo: $(STAMP)
+demo: $(STAMP) $(VIEWER)
 	$(VENV)/bin/sc-fem demo -o $(OUT)
 
-test: $(STAMP)
+test: $(STAMP) $(VIEWER)
 	$(PY) -m pytest -q -p no:cacheprovider tests $(wildcard notebooks/*.ipynb) $(if $(wildcard notebooks/*.ipynb),--nbmake,)
 
 bench: $(STAMP)
@@ -31,4 +40,4 @@ notebooks: $(STAMP)
 	$(PY) notebooks/execute.py           # re-execute and store the outputs (plots) in place
 
 clean:
-	rm -rf $(VENV) $(OUT) benchmarks/out build src/*.egg-info
+	rm -rf $(VENV) $(OUT) benchmarks/out build src/*.egg-info $(VIEWER)

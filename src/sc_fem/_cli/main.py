@@ -41,6 +41,8 @@ OUTPUTS: dict[str, tuple[tuple[str, ...], bool]] = {
     "simulate": ((".npz", ".xdmf", ".mp4", ".gif"), False),
     "reconstruct": ((".npz",), False),
     "demo": ((), True),
+    "export": ((".glb", ".gltf"), False),
+    "view": ((".html", ".htm"), False),
 }
 """Per command: the output extensions it writes and whether a folder is accepted; checked (and the
 output location probed for writing) before any work starts."""

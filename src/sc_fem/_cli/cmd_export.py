@@ -1,0 +1,63 @@
+"""``sc-fem export`` (glTF 2.0 for engines, Blender and the browser) and ``sc-fem view`` (one HTML
+page that plays the modes in real time)."""
+
+from __future__ import annotations
+
+from .common import add_up_arg
+
+
+def register(sub) -> None:
+    p = sub.add_parser("export", help="write modes or an animation as glTF 2.0 (.glb/.gltf): modes as morph targets",
+                       description="Write a mode file as glTF 2.0: the source mesh with one morph target per mode "
+                                   "(weight 1 = --amplitude of the model's size; the scales, frequencies and damping "
+                                   "in meshes[0].extras.sc_fem), optionally a baked playback (--impulse or --mode) as "
+                                   "a weights animation. An animation file (sc-fem simulate .npz) is written as one "
+                                   "morph target per frame with a weights channel.")
+    p.add_argument("source", metavar="FILE", help="mode file or animation file (.npz)")
+    p.add_argument("-o", "--output", required=True, help="output .glb (or .gltf)")
+    p.add_argument("--amplitude", type=float, default=0.05,
+                   help="largest displacement of a mode at weight 1, fraction of the bounding-box diagonal (0.05)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--impulse", type=float, nargs=4, default=None, metavar=("VERTEX", "JX", "JY", "JZ"),
+                   help="bake the exact response to an impulse (N s) on a source vertex")
+    g.add_argument("--mode", type=int, default=None, help="bake this mode released from weight 1")
+    p.add_argument("--duration", type=float, default=2.0, help="seconds of baked playback (2)")
+    p.add_argument("--fps", type=float, default=30.0, help="samples per second of the baked playback (30)")
+    p.add_argument("--quiet", "-q", action="store_true", help="print only errors")
+    p.set_defaults(func=run_export)
+
+    v = sub.add_parser("view", help="write a self-contained HTML page that plays a mode file in the browser",
+                       description="Write one HTML page (three.js and the modes inlined; no network needed) with "
+                                   "per-mode sliders, click-to-strike (the exact damped modal response), the "
+                                   "frequency table and the time scale. Open it in any browser.")
+    v.add_argument("modes", metavar="MODES", help="mode file (.npz) from precompute-modes")
+    v.add_argument("-o", "--output", required=True, help="output .html")
+    v.add_argument("--amplitude", type=float, default=0.05, help="weight 1 as a fraction of the model's size (0.05)")
+    add_up_arg(v)
+    v.add_argument("--quiet", "-q", action="store_true", help="print only errors")
+    v.set_defaults(func=run_view)
+
+
+def run_export(args) -> int:
+    from ..errors import InputError
+    from ..io.gltf import export_gltf
+
+    impulse = None
+    if args.impulse is not None:
+        if not float(args.impulse[0]).is_integer():
+            raise InputError(f"--impulse VERTEX must be an integer vertex index, got {args.impulse[0]:g}")
+        impulse = (int(args.impulse[0]), args.impulse[1:])
+    path = export_gltf(args.source, args.output, amplitude=args.amplitude, impulse=impulse, mode=args.mode,
+                       duration=args.duration, fps=args.fps)
+    if not args.quiet:
+        print(f"wrote {path} ({path.stat().st_size / 1024:.0f} KiB)")
+    return 0
+
+
+def run_view(args) -> int:
+    from ..io.viewer import write_viewer
+
+    path = write_viewer(args.modes, args.output, amplitude=args.amplitude, up=args.up)
+    if not args.quiet:
+        print(f"wrote {path} ({path.stat().st_size / 1024:.0f} KiB): open it in a browser (file://{path.resolve()})")
+    return 0
