@@ -44,5 +44,6 @@ def test_every_readme_command_runs_as_written(tmp_path, monkeypatch):
         argv = shlex.split(cmd)[1:]
         assert main(argv + ["--quiet"] if "--quiet" not in argv and argv[0] != "reconstruct" else argv) == 0, cmd
     for name in ("bridge.png", "model.vtu", "chair.modes.npz", "chair.npz", "chair.mp4", "sheet.png",
-                 "outdir/summary.csv", "bridge.npz", "rope.npz", "recon.npz", "table.md"):
+                 "outdir/summary.csv", "bridge.npz", "rope.npz", "recon.npz", "table.md", "chair.glb",
+                 "strike.glb", "chair.html"):
         assert (tmp_path / name).stat().st_size > 0, name
