@@ -47,4 +47,6 @@ def test_cubes_agree_with_the_conforming_reference_on_a_sphere_and_a_bar():
     assert errs[1].mean() < errs[0].mean()                          # and falling with resolution
     bar = solve_reference("builtin:beam", n_tets=600, n_modes=6, **STEEL)
     f = sc_fem.modal(sc_fem.voxelize("builtin:beam", resolution=16), n_modes=6).frequencies
-    assert np.abs(f / bar.frequencies - 1).mean() < 0.02            # q1i, 2 cubes thick
+    # q1i, 1.6 cubes thick (partly filled cubes): measured 3.3 % since partial q1i cubes pass the
+    # patch test (1.9 % before, from sliver cubes that were too soft)
+    assert np.abs(f / bar.frequencies - 1).mean() < 0.04

@@ -1,0 +1,193 @@
+"""Cost against size: voxelize -> assemble -> 6 modes -> bake, from ~10k to ~1M cubes.
+
+Each stage of each size runs in a **fresh process**, so its wall time and its peak memory (the
+resident set size sampled every 5 ms during the stage, minus what the process held before it) are its own.
+The model is a solid bar of 4a x a x a cubes (a 4 m steel cantilever, one end held) voxelized from
+a box mesh, so the cube count is exact and the frequencies are checkable; the bake maps the modes
+onto a surface mesh of about 10 % as many vertices as cubes. Prints a Markdown table, the measured
+log-log slopes (cost ~ cubes^p), the eigensolver each size chose and why, and at one size the
+shift-invert and LOBPCG + AMG solvers side by side; writes ``benchmarks/out/scale.png`` and
+``benchmarks/out/scale.md``.
+
+    python benchmarks/scale.py                      # 10k, 30k, 100k, 300k, 1M cubes (~15 min, ~8 GB)
+    python benchmarks/scale.py --quick              # 10k, 30k, 100k
+    python benchmarks/scale.py --sizes 10000 50000 --compare 46240
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+from _common import out_path, print_table, save_figure
+
+STAGE = textwrap.dedent(r"""
+    import json, sys, time
+    import numpy as np, trimesh
+    import sc_fem
+    from sc_fem.fem.eigen import solve_eigen, rigid_body_modes
+
+    a, stage, method = int(sys.argv[1]), sys.argv[2], sys.argv[3]
+    h = 1.0 / a
+    box = trimesh.creation.box(extents=(4.0, 1.0, 1.0))
+    box.apply_translation((2.0, 0.5, 0.5))
+    import os, threading
+    PAGE = os.sysconf("SC_PAGE_SIZE")
+    def now():                                   # resident set size now, bytes
+        with open("/proc/self/statm") as fh:
+            return int(fh.read().split()[1]) * PAGE
+    class Peak:                                  # samples the RSS every 5 ms during a stage
+        def __enter__(self):
+            self.base = self.top = now(); self.on = True
+            def loop():
+                while self.on:
+                    self.top = max(self.top, now()); time.sleep(0.005)
+            self.t = threading.Thread(target=loop, daemon=True); self.t.start(); return self
+        def __exit__(self, *exc):
+            self.on = False; self.t.join(); self.top = max(self.top, now())
+        @property
+        def added(self):
+            return self.top - self.base
+    out = {}
+    t0 = time.perf_counter()
+    with Peak() as pk:
+        model = sc_fem.voxelize(box, pitch=h, fill="solid", youngs=200e9, poisson=0.3, density=7850.0)
+    out["voxelize"] = time.perf_counter() - t0
+    out["cubes"] = model.n_cubes
+    if stage == "voxelize":
+        out["peak"] = pk.added
+        print(json.dumps(out)); sys.exit()
+    fixed = sc_fem.fixed_nodes(model, "x<min+1e-9")
+    t0 = time.perf_counter()
+    with Peak() as pk:
+        asm = sc_fem.Assembler(model, "q1i", fixed_dofs=sc_fem.fixed_dofs(fixed))
+        K = asm.stiffness(); M = asm.mass()
+    out["assemble"] = time.perf_counter() - t0
+    out["dofs"] = K.shape[0]
+    if stage == "assemble":
+        out["peak"] = pk.added
+        print(json.dumps(out)); sys.exit()
+    t0 = time.perf_counter()
+    with Peak() as pk:
+        eig = solve_eigen(K, M, 6, method=method, near_null=rigid_body_modes(model.nodes_m, asm.free_dofs))
+    out["modes"] = time.perf_counter() - t0
+    out["method"], out["reason"] = eig.method, eig.reason
+    out["f_hz"] = (np.sqrt(np.maximum(eig.eigenvalues, 0)) / 2 / np.pi).tolist()
+    if stage == "modes":
+        out["peak"] = pk.added
+        print(json.dumps(out)); sys.exit()
+    surf = trimesh.creation.box(extents=(4.0, 1.0, 1.0))
+    surf.apply_translation((2.0, 0.5, 0.5))
+    while len(surf.vertices) < 0.1 * model.n_cubes:
+        surf = surf.subdivide()
+    t0 = time.perf_counter()
+    with Peak() as pk:
+        W = sc_fem.embed(model, surf.vertices)
+        node = asm.expand(eig.vectors)                     # (m, 3, k)
+        vert = np.asarray(W @ node.reshape(model.n_nodes, -1)).reshape(len(surf.vertices), 3, -1)
+    out["bake"] = time.perf_counter() - t0
+    out["vertices"] = len(surf.vertices)
+    out["peak"] = pk.added
+    print(json.dumps(out))
+""")
+
+
+def run_stage(a: int, stage: str, method: str = "auto") -> dict:
+    res = subprocess.run([sys.executable, "-c", STAGE, str(a), stage, method], capture_output=True, text=True)
+    if res.returncode != 0:
+        tail = (res.stderr or res.stdout).strip().splitlines()[-1:]
+        return {"error": " ".join(tail)[:200]}
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def side(n_cubes: float) -> int:
+    """``a`` of a 4a x a x a bar with about ``n_cubes`` cubes."""
+    return max(2, int(round((n_cubes / 4.0) ** (1.0 / 3.0))))
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="10k, 30k and 100k cubes")
+    ap.add_argument("--sizes", type=int, nargs="*", default=None, help="approximate cube counts")
+    ap.add_argument("--compare", type=int, default=46240,
+                    help="cubes of the size where shift-invert and LOBPCG run side by side (default: the "
+                         "160 x 16 x 16-node cantilever of 138,720 free DOFs; 0 to skip)")
+    args = ap.parse_args(argv)
+    sizes = args.sizes or ((10_000, 30_000, 100_000) if args.quick else (10_000, 30_000, 100_000, 300_000, 1_000_000))
+    rows, series = [], {s: [] for s in ("voxelize", "assemble", "modes", "bake")}
+    for n in sizes:
+        a = side(n)
+        r = {"a": a}
+        for stage in ("voxelize", "assemble", "modes", "bake"):       # a fresh process per stage
+            got = run_stage(a, stage)
+            if "error" in got:
+                r[stage] = got["error"]
+                print(f"[{4 * a**3:,} cubes] {stage} FAILED: {got['error']}", file=sys.stderr, flush=True)
+                break
+            r[stage], r[f"{stage}_peak"] = got[stage], got["peak"]
+            r.update({k: got[k] for k in ("cubes", "dofs", "method", "reason", "f_hz", "vertices") if k in got})
+            series[stage].append((got["cubes"], got[stage], got["peak"]))
+            print(f"[{got['cubes']:,} cubes] {stage}: {got[stage]:.2f} s, peak +{got['peak'] / 2**20:,.0f} MiB"
+                  + (f" ({got['method']}: {got['reason']})" if stage == "modes" else ""), file=sys.stderr, flush=True)
+        rows.append(r)
+
+    def cell(r, s):
+        v = r.get(s)
+        if v is None:
+            return "-"
+        if isinstance(v, str):
+            return "failed"
+        return f"{v:.2f} s / {r[f'{s}_peak'] / 2**20:,.0f} MiB"
+
+    table = [[f"{r.get('cubes', 4 * r['a'] ** 3):,}", f"{r.get('dofs', 0):,}", cell(r, "voxelize"), cell(r, "assemble"),
+              cell(r, "modes"), r.get("method", "-"), cell(r, "bake"),
+              "-" if "f_hz" not in r else f"{r['f_hz'][0]:.4g}"] for r in rows]
+    text = print_table(["cubes", "free DOFs", "voxelize", "assemble K, M", "6 modes", "solver (auto)", "bake",
+                        "f1 Hz (Euler-Bernoulli: 51.0)"], table)
+    slopes = []
+    for stage, pts in series.items():
+        if len(pts) >= 2:
+            e = np.array(pts, dtype=float)
+            pt = np.polyfit(np.log(e[:, 0]), np.log(e[:, 1]), 1)[0]
+            pm = np.polyfit(np.log(e[:, 0]), np.log(np.maximum(e[:, 2], 1.0)), 1)[0]
+            slopes.append([stage, f"{pt:.2f}", f"{pm:.2f}"])
+    print()
+    text += "\n\n" + print_table(["stage", "time ~ cubes^p", "peak memory ~ cubes^p"], slopes)
+    if args.compare:
+        a = side(args.compare)
+        cmp_rows = []
+        for method in ("shift-invert", "lobpcg", "auto"):
+            got = run_stage(a, "modes", method)
+            cmp_rows.append([method, f"{got.get('dofs', 0):,}",
+                             "failed" if "error" in got else f"{got['modes']:.2f}",
+                             "-" if "error" in got else f"{got['peak'] / 2**20:,.0f}",
+                             got.get("method", "-"), got.get("reason", got.get("error", ""))[:90]])
+            print(f"[compare] {method}: {cmp_rows[-1][2]} s", file=sys.stderr, flush=True)
+        print()
+        text += "\n\n" + print_table(["asked", "free DOFs", "6 modes, s", "peak MiB", "ran", "reason"], cmp_rows)
+    with open(out_path("scale.md"), "w") as fh:
+        fh.write(text + "\n")
+
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(1, 2, figsize=(11, 4))
+    for stage, pts in series.items():
+        if pts:
+            e = np.array(pts, dtype=float)
+            ax[0].loglog(e[:, 0], e[:, 1], "o-", label=stage)
+            ax[1].loglog(e[:, 0], np.maximum(e[:, 2], 1.0) / 2**20, "o-", label=stage)
+    ax[0].set(xlabel="cubes", ylabel="wall time, s", title="time per stage (fresh process each)")
+    ax[1].set(xlabel="cubes", ylabel="peak memory added, MiB", title="peak memory per stage")
+    for a_ in ax:
+        a_.grid(True, which="both", alpha=0.3)
+        a_.legend(fontsize=8)
+    save_figure(fig, "scale.png")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
