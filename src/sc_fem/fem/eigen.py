@@ -118,22 +118,42 @@ def lobpcg_memory_estimate(n: int, nnz: int, k: int) -> int:
     return int(2.5 * 12.0 * nnz + 12.0 * 8.0 * n * (k + 8))
 
 
+SPEED_MODEL = {"shift-invert": (0.9, 1.75), "lobpcg": (3.2, 1.04)}
+"""Predicted seconds for 6 modes of a lattice with ``n`` free DOFs: ``c * (n / 7776) ** p`` per
+solver, fitted to ``python benchmarks/scale.py`` on this machine class (2 cores, the default
+OpenBLAS): 7,776 DOFs 0.9 s / 3.2 s, 158,976 DOFs 175 s / 72 s (shift-invert with CHOLMOD /
+LOBPCG + smoothed-aggregation AMG). The factorization's cost grows faster than LOBPCG's, and on
+BLAS kernels this slow the crossover is near 47,000 DOFs; LOBPCG's cost also grows with ``k``."""
+
+
+def predicted_seconds(method: str, n: int, k: int) -> float:
+    """Seconds :data:`SPEED_MODEL` predicts for ``k`` modes of ``n`` free DOFs."""
+    c, p = SPEED_MODEL[method]
+    t = c * (max(n, 1) / 7776.0) ** p
+    return t * (max(k, 6) / 6.0 if method == "lobpcg" else 1.0)
+
+
 def choose_method(n: int, nnz: int, k: int, max_memory: float | None = None) -> tuple[str, str]:
-    """``("shift-invert" | "lobpcg", reason)`` from the memory estimates and the budget (bytes)."""
+    """``("shift-invert" | "lobpcg", reason)``: the one :func:`predicted_seconds` says is faster,
+    among those whose memory estimate fits the budget (bytes; default half the available memory)."""
     from ..lattice.voxelize import available_memory
 
     budget = 0.5 * available_memory() if max_memory is None else float(max_memory)
     need = factor_memory_estimate(n, nnz)
-    if need <= budget:
-        return "shift-invert", (f"factorization needs ~{need / 2**20:,.0f} MiB <= budget "
-                                f"{budget / 2**20:,.0f} MiB")
     need_l = lobpcg_memory_estimate(n, nnz, k)
-    if need_l > budget:
+    t_si, t_l = predicted_seconds("shift-invert", n, k), predicted_seconds("lobpcg", n, k)
+    fits_si, fits_l = need <= budget, need_l <= budget
+    if not (fits_si or fits_l):
         raise SolverError(f"the eigenproblem with {n:,} DOFs does not fit in memory: a factorization needs "
                           f"~{need / 2**30:.1f} GiB and LOBPCG ~{need_l / 2**30:.1f} GiB, budget "
                           f"{budget / 2**30:.1f} GiB; use a coarser resolution")
-    return "lobpcg", (f"factorization would need ~{need / 2**20:,.0f} MiB > budget {budget / 2**20:,.0f} MiB; "
-                      f"LOBPCG + AMG needs ~{need_l / 2**20:,.0f} MiB")
+    times = f"predicted {t_si:.3g} s shift-invert vs {t_l:.3g} s LOBPCG + AMG"
+    if fits_si and (t_si <= t_l or not fits_l):
+        return "shift-invert", (f"{times}; factorization ~{need / 2**20:,.0f} MiB <= budget "
+                                f"{budget / 2**20:,.0f} MiB")
+    why = "faster" if fits_si else (f"the factorization would need ~{need / 2**20:,.0f} MiB > budget "
+                                    f"{budget / 2**20:,.0f} MiB")
+    return "lobpcg", f"{times} ({why}); LOBPCG needs ~{need_l / 2**20:,.0f} MiB"
 
 
 def rigid_body_modes(points: np.ndarray, free_dofs: np.ndarray | None = None) -> np.ndarray:
