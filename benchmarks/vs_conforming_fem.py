@@ -97,7 +97,7 @@ def main(argv=None) -> int:
         refs = []
         for n in tets:
             ref = solve_reference(mesh, n_tets=n, n_modes=10, clamp=lambda p, a=a, lo=lo, d=d: p[:, a] < lo + d,
-                                  **mat)
+                                  gravity=g, **mat)
             refs.append(ref)
             print(f"[{name}] reference {ref.n_tets} P2 tets, {ref.n_dofs} DOFs: {ref.seconds:.1f} s, "
                   f"f = {np.round(ref.frequencies[:4], 3)} Hz; surface: {ref.repair}", file=sys.stderr, flush=True)

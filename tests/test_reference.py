@@ -50,3 +50,20 @@ def test_cubes_agree_with_the_conforming_reference_on_a_sphere_and_a_bar():
     # q1i, 1.6 cubes thick (partly filled cubes): measured 3.3 % since partial q1i cubes pass the
     # patch test (1.9 % before, from sliver cubes that were too soft)
     assert np.abs(f / bar.frequencies - 1).mean() < 0.04
+
+
+def test_reference_gravity_follows_the_given_vector():
+    """The clamped bar sags the same under -z and -y gravity (square section), and a y-up model is
+    loaded along -y: the reference once always pulled along -z, so a y-up comparison (spot, bunny)
+    loaded the two models in different directions."""
+    clamp = lambda p: p[:, 0] < 1e-6 - 0.5            # the root face of the centred bar  # noqa: E731
+    bar = trimesh.creation.box(extents=(1.0, 0.1, 0.1))
+    down_z = solve_reference(bar, n_tets=300, n_modes=1, clamp=clamp, **STEEL)
+    down_y = solve_reference(bar, n_tets=300, n_modes=1, clamp=clamp, gravity=(0.0, -9.81, 0.0), **STEEL)
+    along = solve_reference(bar, n_tets=300, n_modes=1, clamp=clamp, gravity=(-9.81, 0.0, 0.0), **STEEL)
+    assert down_y.max_displacement == pytest.approx(down_z.max_displacement, rel=0.05)
+    # cantilever tip sag q L^4 / (8 E I) = 6.18e-5 m; pulled along its axis it stretches 1000x less
+    assert down_z.max_displacement == pytest.approx(7850 * 0.01 * 9.81 / (8 * 200e9 * 0.1**4 / 12), rel=0.1)
+    assert along.max_displacement < 0.01 * down_z.max_displacement
+    with pytest.raises(sc_fem.errors.InputError, match="gravity"):
+        solve_reference(bar, n_tets=300, n_modes=1, clamp=clamp, gravity=(0.0, 9.81), **STEEL)

@@ -176,7 +176,8 @@ def _free_free(K, M, n_modes: int, shift: float) -> np.ndarray:
 
 def solve_reference(mesh: Any, *, youngs: float, poisson: float, density: float, scale: float = 1.0,
                     n_tets: int = 20000, n_modes: int = 10, max_faces: int = 6000,
-                    clamp: Callable[[np.ndarray], np.ndarray] | None = None) -> ReferenceSolution:
+                    clamp: Callable[[np.ndarray], np.ndarray] | None = None,
+                    gravity=(0.0, 0.0, -GRAVITY)) -> ReferenceSolution:
     """Solve the shape with conforming P2 tetrahedra.
 
     Parameters
@@ -192,8 +193,11 @@ def solve_reference(mesh: Any, *, youngs: float, poisson: float, density: float,
     n_modes : int
         Free-free elastic modes to compute.
     clamp : callable, optional
-        ``clamp(points (n, 3) metres) -> bool (n,)``: nodes held for the gravity case
-        (``(0, 0, -9.81)``); None skips it.
+        ``clamp(points (n, 3) metres) -> bool (n,)``: nodes held for the gravity case; None
+        skips it.
+    gravity : array_like, shape (3,)
+        Acceleration of the gravity case, m/s^2 (default ``(0, 0, -9.81)``): give the same vector
+        as the model it is compared with (a y-up mesh sags along -y).
     """
     from skfem import Basis, BilinearForm, ElementTetP2, ElementVector, MeshTet, asm
 
@@ -201,6 +205,9 @@ def solve_reference(mesh: Any, *, youngs: float, poisson: float, density: float,
     from skfem.helpers import dot
     from skfem.models.elasticity import lame_parameters, linear_elasticity
 
+    g = np.asarray(gravity, dtype=float)
+    if g.shape != (3,) or not np.all(np.isfinite(g)):
+        raise InputError(f"gravity must be 3 finite numbers (m/s^2), got {gravity!r}")
     timings = {}
     t0 = time.perf_counter()
     tm = tetrahedralize(mesh, scale=scale, n_tets=n_tets, max_faces=max_faces)
@@ -218,9 +225,15 @@ def solve_reference(mesh: Any, *, youngs: float, poisson: float, density: float,
         return density * dot(u, v)
 
     M = asm(mass_form, mbasis)
-    ones = np.zeros(basis.N)
-    ones[basis.nodal_dofs[2]] = 1.0           # z component of a uniform field (P2: nodal + edge dofs)
-    ones[basis.edge_dofs[2]] = 1.0
+
+    def uniform(c: np.ndarray) -> np.ndarray:           # the field u = c everywhere (P2: nodal + edge dofs)
+        out = np.zeros(basis.N)
+        for k in range(3):                                # the 3 components, not a loop over nodes
+            out[basis.nodal_dofs[k]] = c[k]
+            out[basis.edge_dofs[k]] = c[k]
+        return out
+
+    ones = uniform(np.array([0.0, 0.0, 1.0]))
     total_mass = float(ones @ (M @ ones))
     timings["assemble"] = time.perf_counter() - t0
     t0 = time.perf_counter()
@@ -233,7 +246,7 @@ def solve_reference(mesh: Any, *, youngs: float, poisson: float, density: float,
         held = np.asarray(clamp(basis.doflocs.T), dtype=bool)
         if not held.any():
             raise InputError("clamp selects no node of the reference mesh")
-        f = M @ (-GRAVITY * ones)
+        f = M @ uniform(g)
         free = np.flatnonzero(~held)
         u = np.zeros(basis.N)
         u[free] = factorize(sp.csr_matrix(K)[free][:, free].tocsc()).solve(f[free])
