@@ -70,7 +70,7 @@ class Reference:
 def run_xpbd(model, fixed, dt, n):
     from sc_fem.dynamics.xpbd import XPBDSolver
 
-    s = XPBDSolver(model, dt, substeps=1, iterations=10, fixed=fixed, gravity=(0, 0, -9.81))
+    s = XPBDSolver(model, dt, substeps=1, iterations=10, fixed_nodes=fixed, gravity=(0, 0, -9.81))
     us, es, t0 = [np.zeros((model.n_nodes, 3))], [0.0], time.perf_counter()
     for _ in range(n):
         st = s.step()

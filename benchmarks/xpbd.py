@@ -77,7 +77,7 @@ def vibration(t: np.ndarray, z: np.ndarray):
 
 
 def run_setting(m, fixed, tip, kind, ss, it, warm, seconds):
-    s = XPBDSolver(m, 1 / 60, substeps=ss, iterations=it, constraints=kind, fixed=fixed, warm_start=warm)
+    s = XPBDSolver(m, 1 / 60, substeps=ss, iterations=it, constraints=kind, fixed_nodes=fixed, warm_start=warm)
     z0 = m.nodes_m[tip, 2].mean()
     z, t0 = [], time.perf_counter()
     blew = ""
@@ -136,7 +136,7 @@ def main(argv=None) -> int:
         dts = [2.5e-4, 1e-3, 4e-3, 16e-3]
     srows = []
     for kind in ("neohookean", "corotational"):
-        for r in stability_sweep(mc, dts, duration=0.6 if args.quick else 1.0, fixed=fc, reference=uc,
+        for r in stability_sweep(mc, dts, duration=0.6 if args.quick else 1.0, fixed_nodes=fc, reference=uc,
                                  constraints=kind, damping=damp):
             srows.append([kind, r.dt * 1e3, r.max_energy_growth, "yes" if r.blew_up else "no", r.error,
                           r.ms_per_second])

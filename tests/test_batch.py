@@ -23,7 +23,7 @@ def test_one_broken_mesh_fails_alone(tmp_path):
     assert "broken.obj" in res.rows[1]["error"] and res.rows[1]["output"] == ""
     for r in (res.rows[0], res.rows[2]):
         b = load_modes(r["output"])
-        assert b.n_modes == 3 and b.fixed["n_nodes"] > 0
+        assert b.n_modes == 3 and b.fix_record["n_nodes"] > 0
     with open(res.summary, newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert [r["status"] for r in rows] == ["ok", "error", "ok"] and rows[1]["error"]

@@ -32,7 +32,7 @@ def test_chair_precompute_play_and_sheet(tmp_path, capsys):
     assert main(["precompute-modes", "builtin:chair", "-o", str(out), "-r", "16", "--fix", "default",
                  "--modes", "4", "--damping", "0.03", "-q"]) == 0
     b = load_modes(out)
-    assert b.n_modes == 4 and np.allclose(b.damping, 0.03) and b.fixed["specs"] == ["z<min+0.01"]
+    assert b.n_modes == 4 and np.allclose(b.damping, 0.03) and b.fix_record["specs"] == ["z<min+0.01"]
     assert main(["precompute-modes", "builtin:chair", "-o", str(out), "-r", "12", "--fix", "default",
                  "--max-frequency", "60"]) == 0
     text = capsys.readouterr().out

@@ -213,7 +213,7 @@ BRIDGE_R24_HZ = [20.602692211486605, 21.501247176683734, 24.693642587343138, 29.
 
 def test_builtin_chair_feet_fixed_and_bridge_produce_modes():
     chair = modal("builtin:chair", resolution=16, n_modes=4, fix="z<min+0.01")
-    assert chair.n_modes == 4 and chair.n_rigid_removed == 0 and chair.fixed["n_nodes"] > 0
+    assert chair.n_modes == 4 and chair.n_rigid_removed == 0 and chair.fix_record["n_nodes"] > 0
     assert chair.modes.shape == (4, len(chair.vertices), 3)
     np.testing.assert_allclose(chair.frequencies, CHAIR_R16_HZ, rtol=1e-6)
     assert np.all(chair.residuals < 1e-6)

@@ -47,7 +47,7 @@ def test_round_trip(saved, basis):
     np.testing.assert_array_equal(b.damping, basis.damping)
     assert b.damping_spec == {"kind": "rayleigh", "alpha": 0.5, "beta": 1e-4}
     assert b.element == "q1i" and b.pitch == basis.pitch and b.scale == basis.scale
-    assert b.fixed == basis.fixed and b.material == json.loads(json.dumps(basis.material))
+    assert b.fix_record == basis.fix_record and b.material == json.loads(json.dumps(basis.material))
     assert b.n_cubes == basis.n_cubes and b.eigen["method"] == basis.eigen["method"]
     assert b.lattice is not None and b.lattice.n_nodes == basis.lattice.n_nodes
     np.testing.assert_allclose(b.node_modes, basis.node_modes, rtol=1e-6, atol=1e-6 * np.abs(basis.node_modes).max())

@@ -34,7 +34,7 @@ def test_maps_are_the_trilinear_map_and_its_transpose():
     # a rigid translation of the nodes moves every vertex by the same amount (rows of W sum to 1)
     np.testing.assert_allclose(scene.vertex_displacements(np.tile([1e-3, 0, 0], (m, 1))),
                                np.tile([1.0, 0, 0], (n, 1)), atol=1e-12)
-    assert len(scene.fixed) and np.all(scene.model.nodes[scene.fixed, 0] < scene.rest_vertices[:, 0].min() + 1)
+    assert len(scene.fixed_nodes) and np.all(scene.model.nodes[scene.fixed_nodes, 0] < scene.rest_vertices[:, 0].min() + 1)
     with pytest.raises(InputError, match=r"u must have shape"):
         scene.vertex_positions(np.zeros((m + 1, 3)))
     with pytest.raises(InputError, match=r"f must have shape"):
@@ -46,7 +46,7 @@ def test_solvers_give_the_same_answers_from_a_scene():
     a = sc_fem.modal(scene, n_modes=3)
     b = sc_fem.modal("builtin:beam", resolution=10, fix="x<min+1e-6", n_modes=3)
     np.testing.assert_allclose(a.frequencies, b.frequencies, rtol=1e-9)
-    assert a.fixed == b.fixed and a.source == "builtin:beam" and a.modes.shape == b.modes.shape
+    assert a.fix_record == b.fix_record and a.source == "builtin:beam" and a.modes.shape == b.modes.shape
     s1 = sc_fem.solve_static(scene, gravity=(0, 0, -9.81))
     s2 = sc_fem.solve_static(scene.model, fix="x<min+1e-6", gravity=(0, 0, -9.81), mesh="builtin:beam")
     np.testing.assert_allclose(s1.vertex_displacements, s2.vertex_displacements, rtol=1e-9, atol=1e-15)
@@ -58,7 +58,7 @@ def test_solvers_give_the_same_answers_from_a_scene():
 
 def test_default_supports_of_a_builtin_and_the_records():
     scene = Scene.from_mesh("builtin:bridge", resolution=8, fix="default")
-    assert len(scene.fixed) > 0 and scene.fix_record()["n_nodes"] == len(scene.fixed)
+    assert len(scene.fixed_nodes) > 0 and scene.fix_record()["n_nodes"] == len(scene.fixed_nodes)
     assert scene.material_record()["mass"] == pytest.approx(scene.model.total_mass)
     assert "builtin:bridge" in repr(scene)
     with pytest.raises(sc_fem.BoundaryConditionError, match="builtin"):

@@ -174,7 +174,7 @@ def test_vectorized_equals_loop_oracle(kind, oracle, seed, amplitude, dt, rtol):
     fixed[:3] = True
     v0[fixed] = 0.0
     g = (0.0, -3.0, -9.81)
-    s = XPBDSolver(m, dt, substeps=2, iterations=2, constraints=kind, fixed=fixed, gravity=g,
+    s = XPBDSolver(m, dt, substeps=2, iterations=2, constraints=kind, fixed_nodes=fixed, gravity=g,
                    positions=x0, velocities=v0)
     st = s.step()
     xo, vo = oracle(m, fixed, x0, v0, dt, 2, 2, g)
@@ -187,9 +187,9 @@ def test_vectorized_equals_loop_oracle(kind, oracle, seed, amplitude, dt, rtol):
 def _substep_spectral_radius(kind, ds):
     """Spectral radius of the linearised substep map (x, v) -> (x', v') at rest (finite differences)."""
     m, fixed = _bar()
-    s = XPBDSolver(m, ds, substeps=1, iterations=1, constraints=kind, fixed=fixed, gravity=(0, 0, 0))
+    s = XPBDSolver(m, ds, substeps=1, iterations=1, constraints=kind, fixed_nodes=fixed, gravity=(0, 0, 0))
     n = 3 * m.n_nodes
-    free = np.flatnonzero(np.repeat(~s.fixed, 3))
+    free = np.flatnonzero(np.repeat(~s.fixed_mask, 3))
     sel = np.concatenate([free, n + free])
 
     def f(z):
@@ -220,13 +220,13 @@ def test_large_substep_linear_stability():
 
 def test_blow_up_raises_instability_error_naming_step_and_substep():
     m, fixed = _bar()
-    s = XPBDSolver(m, 1 / 60, substeps=4, fixed=fixed, constraints="neohookean")
+    s = XPBDSolver(m, 1 / 60, substeps=4, fixed_nodes=fixed, constraints="neohookean")
     with pytest.raises(InstabilityError, match=r"step \d+.*substep 4\.167 ms"):
         for _ in range(60):
             s.step()
-    rows = stability_sweep(m, [1e-3], duration=0.2, fixed=fixed, constraints="corotational")
+    rows = stability_sweep(m, [1e-3], duration=0.2, fixed_nodes=fixed, constraints="corotational")
     assert not rows[0].blew_up and rows[0].max_energy_growth < 1.0
-    rows = stability_sweep(m, [16e-3], duration=0.2, fixed=fixed, constraints="neohookean")
+    rows = stability_sweep(m, [16e-3], duration=0.2, fixed_nodes=fixed, constraints="neohookean")
     assert rows[0].blew_up and rows[0].max_energy_growth == np.inf
 
 
@@ -235,9 +235,9 @@ def test_corotational_stable_at_2ms_substeps_under_gravity():
     stays bounded (energy above its start by less than one work scale M |g| diameter), the
     Neo-Hookean pair blows up (its shear stiffness is applied explicitly: CFL-limited)."""
     m, fixed = _bar()
-    co = stability_sweep(m, [2e-3], duration=0.5, fixed=fixed, constraints="corotational")[0]
+    co = stability_sweep(m, [2e-3], duration=0.5, fixed_nodes=fixed, constraints="corotational")[0]
     assert not co.blew_up and co.max_energy_growth < 1.0
-    nh = stability_sweep(m, [2e-3], duration=0.5, fixed=fixed, constraints="neohookean")[0]
+    nh = stability_sweep(m, [2e-3], duration=0.5, fixed_nodes=fixed, constraints="neohookean")[0]
     assert nh.blew_up
 
 
@@ -315,7 +315,7 @@ def test_momentum_conserved_without_gravity_or_supports(kind):
 
 def test_fixed_nodes_stay_fixed_and_energy_does_not_grow():
     m, fixed = _bar(youngs=1e6)
-    s = XPBDSolver(m, 0.01, substeps=40, iterations=1, fixed=fixed)
+    s = XPBDSolver(m, 0.01, substeps=40, iterations=1, fixed_nodes=fixed)
     e0 = s.energy().total
     energies, lowest = [], 0.0
     for st in s.run(20):
@@ -350,7 +350,7 @@ def test_cantilever_sag_converges_with_substeps():
     assert abs(ref - w_eb) < 0.05 * w_eb               # FEM and beam theory agree to 5 %
 
     def sag(substeps, warm=False):
-        s = XPBDSolver(m, 0.01, substeps=substeps, iterations=1, fixed=fixed, damping=90.0, warm_start=warm)
+        s = XPBDSolver(m, 0.01, substeps=substeps, iterations=1, fixed_nodes=fixed, damping=90.0, warm_start=warm)
         try:
             for _ in range(40):
                 st = s.step()
@@ -375,7 +375,7 @@ def test_corotational_cantilever_sag_at_large_and_small_substeps():
     ref = _fem_tip_sag(m)
 
     def sag(substeps):
-        s = XPBDSolver(m, 0.01, substeps=substeps, iterations=1, fixed=fixed, damping=90.0,
+        s = XPBDSolver(m, 0.01, substeps=substeps, iterations=1, fixed_nodes=fixed, damping=90.0,
                        constraints="corotational")
         for _ in range(40):
             st = s.step()
@@ -393,7 +393,7 @@ def test_corotational_cantilever_sag_at_large_and_small_substeps():
 def test_distance_constraints_sag_reasonable():
     m, fixed = _bar(8, poisson=0.25)
     tip = m.node_index[:, 0] == 8
-    s = XPBDSolver(m, 0.01, substeps=40, iterations=1, constraints="distance", fixed=fixed,
+    s = XPBDSolver(m, 0.01, substeps=40, iterations=1, constraints="distance", fixed_nodes=fixed,
                    damping=90.0, warm_start=True)
     for _ in range(40):
         st = s.step()
@@ -404,7 +404,7 @@ def test_distance_constraints_sag_reasonable():
 
 def test_jacobi_variant_sags_too():
     m, fixed = _bar()
-    s = XPBDSolver(m, 0.01, substeps=40, iterations=2, fixed=fixed, gauss_seidel=False, relaxation=1.0,
+    s = XPBDSolver(m, 0.01, substeps=40, iterations=2, fixed_nodes=fixed, gauss_seidel=False, relaxation=1.0,
                    damping=90.0)
     for _ in range(30):
         st = s.step()
@@ -418,7 +418,7 @@ def test_jacobi_variant_sags_too():
 
 def test_simulate_generator_yields_states():
     m = CubeModel.box((3, 1, 1), 0.1, youngs=1e6, poisson=0.3, density=1000.0)
-    states = list(simulate_xpbd(m, 0.01, 3, substeps=5, fixed=[0, 1, 2, 3]))
+    states = list(simulate_xpbd(m, 0.01, 3, substeps=5, fixed_nodes=[0, 1, 2, 3]))
     assert [s.step for s in states] == [0, 1, 2, 3]
     np.testing.assert_allclose([s.time for s in states], [0, 0.01, 0.02, 0.03])
     assert states[0].positions.shape == (m.n_nodes, 3)
@@ -437,9 +437,9 @@ def test_bad_input():
     with pytest.raises(InputError, match="gravity"):
         XPBDSolver(m, 0.01, gravity=(0, -9.81))
     with pytest.raises(BoundaryConditionError, match="fixed"):
-        XPBDSolver(m, 0.01, fixed=[0, 99])
+        XPBDSolver(m, 0.01, fixed_nodes=[0, 99])
     with pytest.raises(BoundaryConditionError, match="fixed"):
-        XPBDSolver(m, 0.01, fixed=np.zeros(3, bool))
+        XPBDSolver(m, 0.01, fixed_nodes=np.zeros(3, bool))
     with pytest.raises(InputError, match="positions"):
         XPBDSolver(m, 0.01, positions=np.zeros((3, 3)))
     with pytest.raises(InputError, match="model"):
@@ -454,11 +454,11 @@ def test_blow_up_message_suggests_substeps_that_are_stable():
     bar, fixed = _bar()
     dt = 1 / 60
     with pytest.raises(InstabilityError, match=r"substeps >= \d+") as info:
-        for _ in XPBDSolver(bar, dt, substeps=8, fixed=fixed).run(60):    # 2.1 ms substeps
+        for _ in XPBDSolver(bar, dt, substeps=8, fixed_nodes=fixed).run(60):    # 2.1 ms substeps
             pass
     need = int(re.search(r"substeps >= (\d+)", str(info.value)).group(1))
     assert need > 8
-    solver = XPBDSolver(bar, dt, substeps=need, fixed=fixed)
+    solver = XPBDSolver(bar, dt, substeps=need, fixed_nodes=fixed)
     for _ in solver.run(60):                                              # one second, no blow-up
         pass
     assert np.all(np.isfinite(solver.state.positions))

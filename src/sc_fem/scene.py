@@ -28,7 +28,7 @@ class Scene:
         The source mesh, model units (None: the lattice nodes stand for it).
     model : CubeModel
         The cube lattice.
-    fixed : ndarray of int, shape (k,)
+    fixed_nodes : ndarray of int, shape (k,)
         Fixed lattice nodes (sorted, unique).
     fix : tuple of str
         The fix specifications the nodes came from (for the records of output files).
@@ -38,7 +38,7 @@ class Scene:
 
     mesh: Any
     model: CubeModel
-    fixed: np.ndarray
+    fixed_nodes: np.ndarray
     fix: tuple = ()
     n_fix_vertices: int = 0
 
@@ -87,7 +87,7 @@ class Scene:
         nodes = fixed_nodes(model, specs, vertices=fix_vertices,
                             mesh_vertices=None if mesh is None else np.asarray(mesh.vertices, dtype=float))
         record = () if specs is None else tuple(str(s) for s in specs)
-        return cls(mesh=mesh, model=model, fixed=np.asarray(nodes, dtype=np.int64), fix=record,
+        return cls(mesh=mesh, model=model, fixed_nodes=np.asarray(nodes, dtype=np.int64), fix=record,
                    n_fix_vertices=0 if fix_vertices is None else int(np.size(fix_vertices)))
 
     # ------------------------------------------------------------------ the source surface
@@ -162,11 +162,11 @@ class Scene:
         """Fixed degrees of freedom (3 per fixed node)."""
         from .fem.boundary import fixed_dofs
 
-        return fixed_dofs(self.fixed)
+        return fixed_dofs(self.fixed_nodes)
 
     def fix_record(self) -> dict:
         """What was fixed, for the records of output files."""
-        return {"specs": list(self.fix), "vertices": self.n_fix_vertices, "n_nodes": int(len(self.fixed))}
+        return {"specs": list(self.fix), "vertices": self.n_fix_vertices, "n_nodes": int(len(self.fixed_nodes))}
 
     def material_record(self) -> dict:
         """The material of the cubes (ranges over cubes) and the total mass, for file records."""
@@ -179,4 +179,4 @@ class Scene:
 
     def __repr__(self) -> str:
         return (f"Scene({self.source or 'lattice'}: {self.model.n_cubes} cubes, "
-                f"{self.rest_vertices.shape[0]} vertices, {len(self.fixed)} fixed nodes)")
+                f"{self.rest_vertices.shape[0]} vertices, {len(self.fixed_nodes)} fixed nodes)")

@@ -112,7 +112,7 @@ def precompute_summary(basis, timings: dict) -> str:
                          f"pitch {basis.pitch:.4g}, element {basis.element})"),
         ("size / mass", " x ".join(f"{e:.4g}" for e in np.ptp(basis.vertices, axis=0) * basis.scale)
          + f" m, {basis.material.get('mass', float('nan')):.6g} kg"),
-        ("fixed", f"{basis.fixed.get('n_nodes', 0)} nodes ({', '.join(basis.fixed.get('specs', [])) or 'free'})"),
+        ("fixed", f"{basis.fix_record.get('n_nodes', 0)} nodes ({', '.join(basis.fix_record.get('specs', [])) or 'free'})"),
         ("eigensolver", f"{e.get('method', '')} / {e.get('backend', '')}: {e.get('reason', '')}; "
                         f"{e.get('passes', 1)} solve(s) on {e.get('setups', 1)} factorization/hierarchy"),
         ("rigid modes", f"{e.get('n_rigid_found', 0)} found, {basis.n_rigid_removed} removed"),

@@ -123,7 +123,7 @@ def run_simulation(scene, *, dt: float, duration: float, method: str = "newmark"
             ("beta/gamma/hht-alpha", newmark != NewmarkOptions())) if on]
         if unsupported:
             raise InputError(f"method 'xpbd' supports gravity and fixed nodes only, not {', '.join(unsupported)}")
-        integ = make_integrator("xpbd", model, dt, fixed_nodes=scene.fixed, gravity=g, substeps=xpbd.substeps,
+        integ = make_integrator("xpbd", model, dt, fixed_nodes=scene.fixed_nodes, gravity=g, substeps=xpbd.substeps,
                                 iterations=xpbd.iterations, constraints=xpbd.constraints, damping=xpbd.damping)
     else:
         loads = [Gravity(g)] if gravity else []
@@ -134,7 +134,7 @@ def run_simulation(scene, *, dt: float, duration: float, method: str = "newmark"
             loads.append(VertexForce(np.arange(len(verts)), np.array([fx, fy, fz]) / len(verts), half_sine(secs)))
         loadset = LoadSet(model, loads, points=verts, faces=scene.faces, W=scene.W)
         contact = Contact(model, verts, obstacles, W=scene.W) if obstacles else None
-        kw = {"fixed_nodes": scene.fixed, "loads": loadset, "contact": contact, "rayleigh": tuple(rayleigh),
+        kw = {"fixed_nodes": scene.fixed_nodes, "loads": loadset, "contact": contact, "rayleigh": tuple(rayleigh),
               "element": element}
         if method != "central":
             kw.update(beta=newmark.beta, gamma=newmark.gamma, alpha=newmark.alpha)

@@ -116,7 +116,7 @@ def rope_scene(n_frames: int = 201, fps: float = 60.0, resolution: int = 40, sub
     t1 = _time.perf_counter()
     fixed = np.flatnonzero(model.node_index[:, 0] == model.node_index[:, 0].min())
     solver = XPBDSolver(model, 1.0 / fps, substeps=substeps, iterations=iterations, constraints=constraints,
-                        fixed=fixed, damping=damping)
+                        fixed_nodes=fixed, damping=damping)
     rest = model.nodes_m
     out = np.empty((n_frames, len(pts), 3))
     nodes = np.empty((n_frames, model.n_nodes, 3))

@@ -72,7 +72,7 @@ class XPBDSolver:
         Constraint family (see the module docstring).
     gravity : array_like, shape (3,)
         m/s^2.
-    fixed : array_like of int or bool mask (m,), optional
+    fixed_nodes : array_like of int or bool mask (m,), optional
         Nodes held at their initial positions.
     damping : float
         Mass-proportional damping rate in 1/s (0 = none besides XPBD's numerical damping).
@@ -90,7 +90,7 @@ class XPBDSolver:
     """
 
     def __init__(self, model: CubeModel, dt: float, *, substeps: int = 10, iterations: int = 1,
-                 constraints: str = "neohookean", gravity=(0.0, 0.0, -9.81), fixed=None,
+                 constraints: str = "neohookean", gravity=(0.0, 0.0, -9.81), fixed_nodes=None,
                  damping: float = 0.0, gauss_seidel: bool = True, relaxation: float = 1.0,
                  warm_start: bool = False, max_energy_growth: float = 10.0,
                  positions=None, velocities=None) -> None:
@@ -115,10 +115,10 @@ class XPBDSolver:
         self.rest = model.nodes_m.copy()
         x = self.rest.copy() if positions is None else as_float_array(positions, "positions", (m, 3)).copy()
         v = np.zeros((m, 3)) if velocities is None else as_float_array(velocities, "velocities", (m, 3)).copy()
-        self.fixed = _as_fixed(fixed, m)
+        self.fixed_mask = _as_fixed(fixed_nodes, m)
         self.mass = model.node_masses()
-        self.w = np.where(self.fixed, 0.0, 1.0 / self.mass)
-        v[self.fixed] = 0.0
+        self.w = np.where(self.fixed_mask, 0.0, 1.0 / self.mass)
+        v[self.fixed_mask] = 0.0
         self._x, self._v = x, v
         self.time, self.n_steps = 0.0, 0
         self.last_energy_growth = 0.0
@@ -338,7 +338,7 @@ class XPBDSolver:
     def substep(self, ds: float) -> None:
         """Advance by one substep of ``ds`` seconds (Algorithm 1)."""
         x_prev = self._x
-        free = ~self.fixed
+        free = ~self.fixed_mask
         x = x_prev + ds * self._v
         x[free] += ds * ds * self.gravity
         a_t = self._scaled_compliance(ds)
@@ -472,14 +472,14 @@ class XPBDSolver:
 
 
 def simulate_xpbd(model: CubeModel, dt: float, n_steps: int, *, substeps: int = 10, iterations: int = 1,
-                  constraints: str = "neohookean", gravity=(0.0, 0.0, -9.81), fixed=None,
+                  constraints: str = "neohookean", gravity=(0.0, 0.0, -9.81), fixed_nodes=None,
                   damping: float = 0.0, gauss_seidel: bool = True, warm_start: bool = False,
                   progress: bool = False, **kw) -> Iterator[XPBDState]:
     """Generator of XPBD states: the initial state (t = 0) then ``n_steps`` steps of ``dt`` s.
 
     See :class:`XPBDSolver` for the parameters."""
     solver = XPBDSolver(model, dt, substeps=substeps, iterations=iterations, constraints=constraints,
-                        gravity=gravity, fixed=fixed, damping=damping, gauss_seidel=gauss_seidel,
+                        gravity=gravity, fixed_nodes=fixed_nodes, damping=damping, gauss_seidel=gauss_seidel,
                         warm_start=warm_start, **kw)
     yield from solver.run(n_steps, progress=progress)
 

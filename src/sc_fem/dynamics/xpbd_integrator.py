@@ -44,7 +44,7 @@ class XPBDIntegrator:
         if fixed_nodes is not None and len(fixed_nodes):
             fixed[np.asarray(fixed_nodes, dtype=np.int64)] = True
         self.solver = XPBDSolver(model, dt, substeps=substeps, iterations=iterations, constraints=constraints,
-                                 gravity=gravity, fixed=fixed, damping=damping)
+                                 gravity=gravity, fixed_nodes=fixed, damping=damping)
         self.model, self.dt = model, self.solver.dt
         g = tuple(float(x) for x in self.solver.gravity)
         self.loads = LoadSet(model, [Gravity(g)] if any(g) else [])

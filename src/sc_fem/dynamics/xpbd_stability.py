@@ -41,7 +41,7 @@ class StabilityRow:
 
 
 def stability_sweep(model: CubeModel, substep_sizes, *, duration: float = 0.5, frame_dt: float | None = None,
-                    fixed=None, reference=None, constraints: str = "neohookean", iterations: int = 1,
+                    fixed_nodes=None, reference=None, constraints: str = "neohookean", iterations: int = 1,
                     gravity=(0.0, 0.0, -9.81), **kw) -> list[StabilityRow]:
     """XPBD released from rest under gravity for each substep length: energy growth, blow-up, error.
 
@@ -55,7 +55,7 @@ def stability_sweep(model: CubeModel, substep_sizes, *, duration: float = 0.5, f
     frame_dt : float, optional
         Frame step, s (default 1/60 s), rounded to a whole number of substeps; at least one
         substep (so the frame step is the substep itself when the substep is longer).
-    fixed : array_like, optional
+    fixed_nodes : array_like, optional
         Fixed nodes (see :class:`XPBDSolver`).
     reference : array_like, shape (m, 3), optional
         Static displacement (m) to compare the final displacement with (see
@@ -78,7 +78,7 @@ def stability_sweep(model: CubeModel, substep_sizes, *, duration: float = 0.5, f
         ds = positive_scalar(float(ds), "substep_sizes")
         n_sub = max(1, int(round((1 / 60 if frame_dt is None else frame_dt) / ds)))
         solver = XPBDSolver(model, ds * n_sub, substeps=n_sub, iterations=iterations, constraints=constraints,
-                            fixed=fixed, gravity=gravity, **kw)
+                            fixed_nodes=fixed_nodes, gravity=gravity, **kw)
         n_steps = max(1, int(round(duration / solver.dt)))
         growth, blew = -np.inf, False
         t0 = _time.perf_counter()

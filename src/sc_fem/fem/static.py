@@ -189,7 +189,7 @@ def solve_static(model, *, element: str = DEFAULT_ELEMENT, fix=None, fix_vertice
 
     if fix_vertices is not None and pts is None:
         raise BoundaryConditionError("fix_vertices needs mesh= or points= (the vertex positions)")
-    fixed = scene.fixed if scene is not None else fixed_nodes(model, fix, vertices=fix_vertices, mesh_embedding=emb)
+    fixed = scene.fixed_nodes if scene is not None else fixed_nodes(model, fix, vertices=fix_vertices, mesh_embedding=emb)
 
     # parts that are not held: error if loaded, pin if unloaded
     labels = node_parts(model)

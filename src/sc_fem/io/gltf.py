@@ -166,7 +166,7 @@ def gltf_document(source, *, amplitude: float = DEFAULT_AMPLITUDE, impulse=None,
               "damping_ratios": [float(z) for z in basis.damping], "mode_scales": [float(x) for x in s],
               "mode_scales_units": "m kg^0.5 (modal coordinate q_k = weight_k * mode_scales[k])",
               "amplitude": amplitude, "scale_m_per_unit": float(basis.scale), "source": basis.source,
-              "material": basis.material, "fixed": basis.fixed,
+              "material": basis.material, "fixed": basis.fix_record,
               "target_names": [f"mode {k}: {f:.4g} Hz" for k, f in enumerate(basis.frequencies)]}
     if impulse is None and mode is None:
         return _document(basis.vertices, basis.faces, targets, np.zeros(basis.n_modes), extras)

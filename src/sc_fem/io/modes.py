@@ -79,7 +79,7 @@ def save_modes(basis: ModalBasis, path) -> Path:
         rigid=np.asarray(basis.rigid, dtype=bool), residuals=np.asarray(basis.residuals, dtype=np.float64),
         rigid_removed=np.int64(basis.n_rigid_removed), scale=np.float64(basis.scale),
         pitch=np.float64(basis.pitch), resolution=np.int64(basis.resolution), element=np.str_(basis.element),
-        material_json=np.str_(json.dumps(basis.material)), fixed_json=np.str_(json.dumps(basis.fixed)),
+        material_json=np.str_(json.dumps(basis.material)), fixed_json=np.str_(json.dumps(basis.fix_record)),
         source=np.str_(basis.source), source_sha256=np.str_(basis.source_sha256),
         meta_json=np.str_(json.dumps(meta, default=_json_default)),
     )
@@ -200,7 +200,7 @@ def load_modes(path) -> ModalBasis:
         damping=data["damping"], damping_spec=damping_spec, rigid=data["rigid"].astype(bool),
         residuals=data["residuals"], n_rigid_removed=int(data["rigid_removed"]), scale=float(data["scale"]),
         pitch=float(data["pitch"]), resolution=int(data["resolution"]), element=str(data["element"]),
-        material=material, fixed=fixed, source=str(data["source"]), source_sha256=str(data["source_sha256"]),
+        material=material, fix_record=fixed, source=str(data["source"]), source_sha256=str(data["source_sha256"]),
         n_cubes=int(meta.get("n_cubes", 0)), n_dofs=int(meta.get("n_dofs", 0)), eigen=meta.get("eigen", {}),
         timings=meta.get("timings", {}), resolution_table=meta.get("resolution_table"),
         lattice=lattice, node_modes=node_modes,

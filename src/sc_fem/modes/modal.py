@@ -101,7 +101,7 @@ class ModalBasis:
         Element type.
     material : dict
         ``name``, ``youngs`` / ``poisson`` / ``density`` (min and max over cubes), ``mass`` (kg).
-    fixed : dict
+    fix_record : dict
         ``specs`` (the ``--fix`` specs), ``vertices`` (count of ``--fix-vertices``),
         ``n_nodes`` (fixed lattice nodes).
     source : str
@@ -139,7 +139,7 @@ class ModalBasis:
     resolution: int
     element: str
     material: dict = field(default_factory=dict)
-    fixed: dict = field(default_factory=dict)
+    fix_record: dict = field(default_factory=dict)
     source: str = ""
     source_sha256: str = ""
     n_cubes: int = 0
@@ -265,7 +265,7 @@ def solve_scene(scene, *, n_modes, max_frequency, element, lumped, keep_rigid,
     from ..fem.boundary import fixed_dofs
     from ..fem.eigen import EigenSolver, rigid_body_modes
 
-    model, fixed = scene.model, scene.fixed
+    model, fixed = scene.model, scene.fixed_nodes
     t = {}
     t0 = time.perf_counter()
     asm = Assembler(model, element, fixed_dofs=fixed_dofs(fixed))
@@ -350,10 +350,10 @@ def finish(s: _Solved, kw: dict, timings: dict, resolution_table: list | None = 
         damping=zeta, damping_spec=spec, rigid=s.rigid, residuals=s.res, n_rigid_removed=s.n_removed,
         scale=float(model.scale), pitch=float(model.pitch),
         resolution=int(model.info.get("resolution", int(model.dims.max()))), element=kw["element"],
-        material=scene.material_record(), fixed=scene.fix_record(),
+        material=scene.material_record(), fix_record=scene.fix_record(),
         source=scene.source, source_sha256=scene.sha256, n_cubes=model.n_cubes, n_dofs=model.n_dofs, eigen=s.info,
         timings=timings, resolution_table=resolution_table, lattice=model if keep else None,
-        node_modes=node_modes if keep else None, fixed_points=model.nodes[scene.fixed])
+        node_modes=node_modes if keep else None, fixed_points=model.nodes[scene.fixed_nodes])
 
 
 def modal(model: Any, *, n_modes: int | None = None, max_frequency: float | None = None, mesh: Any = None,
