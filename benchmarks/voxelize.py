@@ -31,7 +31,7 @@ def main(argv=None) -> int:
         label = mesh.metadata["source"]
         for res in resolutions:
             ts, ms = best_time(lambda: sc_fem.voxelize(mesh, resolution=res, keep="all"), repeat=2)
-            te, me = best_time(lambda: sc_fem.voxelize(mesh, resolution=res, keep="all", method="exact"), repeat=2)
+            te, me = best_time(lambda: sc_fem.voxelize(mesh, resolution=res, keep="all", occupancy="exact"), repeat=2)
             rows.append([label, len(mesh.faces), res, ms.n_cubes, me.n_cubes, ms.info["n_samples"],
                          ts, te, te / ts])
             series.setdefault(label, []).append((res, ts, te, ms.n_cubes))

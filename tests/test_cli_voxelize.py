@@ -13,7 +13,7 @@ def test_help_lists_every_option(capsys):
     with pytest.raises(SystemExit):
         main(["voxelize", "--help"])
     out = capsys.readouterr().out
-    for opt in ("--resolution", "--pitch", "--scale", "--fill", "--method", "--keep", "--youngs",
+    for opt in ("--resolution", "--pitch", "--scale", "--fill", "--occupancy", "--keep", "--youngs",
                 "--poisson", "--density", "--mass", "--output"):
         assert opt in out
 
@@ -80,3 +80,11 @@ def test_demo_writes_every_output(tmp_path, capsys):
     assert "demo finished" in text and ("chair.html" in text) == BUNDLE.is_file()
     rec = sc_fem.reconstruct.load_reconstruction(out / "rope_reconstruction.npz")
     assert rec.meta["segments"] == 2 and rec.E_A_pde.mean() < 0.006986 and rec.E_M_pde.max() < 0.019478
+
+
+def test_old_occupancy_flags_still_work(tmp_path):
+    """``--occupancy`` was ``--method`` / ``--voxel-method``: old command lines keep working."""
+    for flag in ("--occupancy", "--method", "--voxel-method"):
+        out = tmp_path / f"m{flag}.npz"
+        assert main(["voxelize", "builtin:beam", "-r", "8", flag, "exact", "-o", str(out)]) == 0
+        assert load_model(out).info["occupancy"] == "exact"

@@ -179,7 +179,7 @@ def test_default_sampling_covers_every_cube_the_surface_enters(name, res):
 @pytest.mark.parametrize("name", ["chair", "bridge", "rope"])
 def test_sample_cubes_are_a_subset_of_exact_cubes(name):
     s = sc_fem.voxelize(f"builtin:{name}", resolution=32, keep="all")
-    e = sc_fem.voxelize(f"builtin:{name}", resolution=32, keep="all", method="exact")
+    e = sc_fem.voxelize(f"builtin:{name}", resolution=32, keep="all", occupancy="exact")
     ss, es = set(map(tuple, s.cells)), set(map(tuple, e.cells))
     assert ss <= es
     # exact adds only cubes the surface grazes (no deeper than the sample spacing)
@@ -210,7 +210,7 @@ def test_memory_guard_refuses_before_allocating():
     ({"resolution": 0}, InputError), ({"resolution": -3}, InputError), ({"resolution": 2.5}, InputError),
     ({"resolution": 10**6}, ResolutionError), ({"pitch": 0.0}, InputError), ({"pitch": -1}, InputError),
     ({"pitch": 1e-9}, ResolutionError), ({"resolution": 4, "pitch": 0.1}, InputError),
-    ({"fill": "volume"}, InputError), ({"method": "magic"}, InputError), ({"keep": "some"}, InputError),
+    ({"fill": "volume"}, InputError), ({"occupancy": "magic"}, InputError), ({"keep": "some"}, InputError),
     ({"scale": 0}, InputError), ({"mass": -1.0}, InputError), ({"connectivity": "any"}, InputError),
 ])
 def test_bad_arguments(kw, exc):
@@ -223,9 +223,15 @@ def test_all_degenerate_faces_is_a_clear_error():
     with pytest.raises(ScFemError, match="zero area"):
         sc_fem.voxelize((v, np.array([[0, 1, 2]])), resolution=4)
     with pytest.raises(ScFemError, match="needs faces"):
-        sc_fem.voxelize(v, resolution=4, method="exact")
+        sc_fem.voxelize(v, resolution=4, occupancy="exact")
 
 
 def test_zero_mass_material_is_rejected():
     with pytest.raises(MaterialError):
         sc_fem.voxelize("builtin:beam", resolution=4, density=lambda p: np.zeros(len(p)))
+
+
+def test_method_is_the_deprecated_name_of_occupancy():
+    with pytest.warns(DeprecationWarning, match="occupancy"):
+        old = sc_fem.voxelize("builtin:beam", resolution=8, method="exact")
+    assert old.info["occupancy"] == "exact"

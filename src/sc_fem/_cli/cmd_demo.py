@@ -28,10 +28,10 @@ def _voxel_pictures(out: Path, resolution: int) -> list[Path]:
     written = []
     for name in ("chair", "bridge"):
         mesh = load_mesh(f"builtin:{name}")
-        for method in ("sample", "exact"):
-            model = voxelize(mesh, resolution=resolution, method=method)
-            png = plot_cubes_over_mesh(model, mesh, out / f"{name}_cubes_{method}.png",
-                                       title=f"{name} ({method}): {model.n_cubes} cubes, h = {model.h:.3g} m")
+        for occupancy in ("sample", "exact"):
+            model = voxelize(mesh, resolution=resolution, occupancy=occupancy)
+            png = plot_cubes_over_mesh(model, mesh, out / f"{name}_cubes_{occupancy}.png",
+                                       title=f"{name} ({occupancy}): {model.n_cubes} cubes, h = {model.h:.3g} m")
             written.append(png)
         written.append(save_model(model, out / f"{name}_cubes.vtu"))
         print(f"{name}:\n{model_summary(model)}")

@@ -43,8 +43,9 @@ def register(sub) -> None:
     p.add_argument("--lumped", action="store_true", help="lumped instead of consistent mass")
     p.add_argument("--keep-rigid", action="store_true", help="keep rigid-body modes (flagged) instead of removing them")
     p.add_argument("--keep-lattice", action="store_true", help="also store the lattice and the node modes")
-    p.add_argument("--solver", choices=("auto", "shift-invert", "lobpcg"), default="auto",
-                   help="eigensolver (default auto: shift-invert with Cholesky if it fits in memory, else LOBPCG+AMG)")
+    p.add_argument("--eigensolver", "--solver", dest="eigensolver", choices=("auto", "shift-invert", "lobpcg"),
+                   default="auto", help="default auto: the one predicted faster on this machine (shift-invert with "
+                                        "a Cholesky factor below ~47k DOFs, else LOBPCG + AMG) whose memory fits")
     p.add_argument("--backend", choices=("auto", "cholmod", "cholespy", "splu"), default="auto",
                    help="factorization backend for shift-invert (default: the fastest installed)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
@@ -91,7 +92,7 @@ def _modal_options(args) -> dict:
     vopts = {k: v for k, v in voxelize_options(args).items() if not (k == "pitch" and v is None)}
     opts = dict(resolution=args.resolution, n_modes=args.modes, max_frequency=args.max_frequency, element=args.element,
                 lumped=args.lumped, keep_rigid=args.keep_rigid, keep_lattice=args.keep_lattice,
-                method=args.solver, backend=args.backend, voxelize_options=vopts,
+                eigensolver=args.eigensolver, backend=args.backend, voxelize_options=vopts,
                 fix=list(args.fix) or None,
                 fix_vertices=read_vertex_file(args.fix_vertices) if args.fix_vertices else None)
     if args.tolerance is not None:

@@ -29,7 +29,7 @@ def register(sub) -> None:
                     "rendered .mp4/.gif. "
                     "A run that blows up stops with the time step and dt_crit and writes nothing.")
     add_mesh_arg(p)
-    add_grid_args(p, method_flags=("--voxel-method",))
+    add_grid_args(p, old_method_flag=False)
     add_material_args(p)
     add_fix_args(p)
     p.add_argument("--duration", type=float, required=True, help="simulated time, s")

@@ -20,10 +20,9 @@ def add_mesh_arg(p: argparse.ArgumentParser, *, many: bool = False) -> None:
                             "(chair, bridge, rope, beam)")
 
 
-def add_grid_args(p: argparse.ArgumentParser, *, auto: bool = False,
-                  method_flags: tuple[str, ...] = ("--method", "--voxel-method")) -> None:
-    """Grid options. ``method_flags`` spells the voxelization-method option (commands where
-    ``--method`` means something else, like ``simulate``, pass ``("--voxel-method",)``)."""
+def add_grid_args(p: argparse.ArgumentParser, *, auto: bool = False, old_method_flag: bool = True) -> None:
+    """Grid options. ``--occupancy`` was ``--voxel-method`` (still accepted) and, on commands where
+    ``--method`` means nothing else, ``--method`` (``old_method_flag``)."""
     g = p.add_mutually_exclusive_group()
     g.add_argument("--resolution", "-r", default=None,
                    type=(str if auto else int),
@@ -41,8 +40,10 @@ def add_grid_args(p: argparse.ArgumentParser, *, auto: bool = False,
                    help="moments (default): a partly filled cube's element matrices are integrated over its "
                         "filled region; fraction: its stiffness is scaled by its filled volume; "
                         "full: every cube at full stiffness (the original Squashing Cubes)")
-    p.add_argument(*method_flags, dest="voxel_method", choices=("sample", "exact"), default="sample",
-                   help="voxelization: point sampling (default) or exact triangle-cube overlap")
+    p.add_argument("--occupancy", dest="occupancy", choices=("sample", "exact"), default="sample",
+                   help="which cubes the surface occupies: point sampling (default) or exact triangle-cube overlap")
+    old = ("--voxel-method", "--method") if old_method_flag else ("--voxel-method",)
+    p.add_argument(*old, dest="occupancy", choices=("sample", "exact"), default="sample", help=argparse.SUPPRESS)
     p.add_argument("--keep", choices=("largest", "all"), default="largest",
                    help="keep the largest connected component (default) or all")
 
@@ -56,7 +57,7 @@ def add_material_args(p: argparse.ArgumentParser) -> None:
 
 def voxelize_options(args) -> dict:
     """Keyword arguments of :func:`sc_fem.voxelize` from the grid/material options, except ``resolution``."""
-    return dict(pitch=args.pitch, scale=args.scale, fill=args.fill, method=args.voxel_method, keep=args.keep,
+    return dict(pitch=args.pitch, scale=args.scale, fill=args.fill, occupancy=args.occupancy, keep=args.keep,
                 shell_thickness=args.shell_thickness, stiffness=args.stiffness,
                 youngs=args.youngs, poisson=args.poisson, density=args.density, mass=args.mass)
 
@@ -88,7 +89,7 @@ def model_summary(model) -> str:
         ("source", info.get("source", "")),
         ("grid", " x ".join(str(int(d)) for d in model.dims) + f"  (pitch {model.pitch:.4g} model units, h {model.h:.4g} m)"),
         ("cubes / nodes / DOFs", f"{model.n_cubes:,} / {model.n_nodes:,} / {model.n_dofs:,}"),
-        ("samples", f"{info.get('n_samples', 0):,} ({info.get('sampler', '')}, {info.get('method', '')}, fill {info.get('fill', '')})"),
+        ("samples", f"{info.get('n_samples', 0):,} ({info.get('sampler', '')}, {info.get('occupancy', '')}, fill {info.get('fill', '')})"),
         ("components", f"{info.get('components_found', model.n_components)} found, "
                        f"{info.get('dropped_cubes', 0)} cubes dropped"),
         ("size", " x ".join(f"{e:.4g}" for e in model.dims * model.h) + " m (bounding box of the cubes)"),

@@ -17,9 +17,11 @@ Two methods, both returning the smallest eigenvalues:
     ``K - sigma M`` whose near-null space is the 6 rigid-body modes of the free DOFs. Needs only
     ``O(nnz(K))`` memory: the method for models whose factorization would not fit.
 
-``method="auto"`` estimates the memory of the Cholesky factor (:func:`factor_memory_estimate`)
-and uses shift-invert when it fits in ``max_memory`` (default: half the available memory),
-otherwise LOBPCG; the choice and the reason are returned in :attr:`EigenResult.reason`.
+``method="auto"`` (:func:`choose_method`) predicts both solvers' times from
+:data:`SPEED_MODEL` (calibrated by ``benchmarks/scale.py``) and their memory
+(:func:`factor_memory_estimate`, :func:`lobpcg_memory_estimate`), and takes the faster one that
+fits ``max_memory`` (default: half the available memory); the choice and the reason are returned
+in :attr:`EigenResult.reason`.
 
 All eigenvalues are refined and the vectors made exactly ``M``-orthonormal by a final
 Rayleigh--Ritz step on the computed subspace, whose products ``K V``, ``M V`` also give the

@@ -167,15 +167,15 @@ def _material_defaults(mesh, youngs, poisson, density) -> tuple[Any, Any, Any, s
             base.density if density is None else density, base.name)
 
 
-def _check_options(fill, method, keep, connectivity, stiffness, n_faces) -> None:
-    for name, value, allowed in (("fill", fill, FILLS), ("method", method, ("sample", "exact")),
+def _check_options(fill, occupancy, keep, connectivity, stiffness, n_faces) -> None:
+    for name, value, allowed in (("fill", fill, FILLS), ("occupancy", occupancy, ("sample", "exact")),
                                  ("keep", keep, ("largest", "all")), ("stiffness", stiffness, STIFFNESS)):
         if value not in allowed:
             raise InputError(f"{name} must be one of {', '.join(repr(a) for a in allowed)}, got {value!r}")
     if connectivity is not None and connectivity not in CONNECTIVITY:
         raise InputError(f"connectivity must be one of {sorted(CONNECTIVITY)}, got {connectivity!r}")
-    if method == "exact" and n_faces == 0:
-        raise InputError("method='exact' needs faces; a point cloud can only be sampled")
+    if occupancy == "exact" and n_faces == 0:
+        raise InputError("occupancy='exact' needs faces; a point cloud can only be sampled")
 
 
 def _point_spacing(points: np.ndarray) -> float:
@@ -197,10 +197,11 @@ def _point_cloud_pitch(points: np.ndarray, bounds: np.ndarray) -> float:
 
 def voxelize(mesh: Any, *, resolution: int | None = None, pitch: float | None = None, scale: float = 1.0,
              youngs: Any = None, poisson: Any = None, density: Any = None, mass: float | None = None,
-             fill: str = "auto", method: str = "sample", keep: str = "largest",
+             fill: str = "auto", occupancy: str = "sample", keep: str = "largest",
              connectivity: str | None = None, n_samples: int | None = None, spacing: float | None = None,
              shell_thickness: float | None = None, stiffness: str = "moments",
-             subsamples: int = DEFAULT_SUBSAMPLES, seed: int = 0, max_memory: float | None = None) -> CubeModel:
+             subsamples: int = DEFAULT_SUBSAMPLES, seed: int = 0, max_memory: float | None = None,
+             method: str | None = None) -> CubeModel:
     """Voxelize a model into elastic cubes (the Squashing Cubes model).
 
     Parameters
@@ -229,7 +230,7 @@ def voxelize(mesh: Any, *, resolution: int | None = None, pitch: float | None = 
         ``"surface"``: every part is a shell of ``shell_thickness``.
         A solid's mass is ``rho`` times the volume inside each cube (boundary cubes by
         ``subsamples^3`` inside tests); a shell's is ``rho * area * shell_thickness``.
-    method : {"sample", "exact"}
+    occupancy : {"sample", "exact"}
         Which cubes the surface occupies: ``"sample"``, the paper's point sampling; ``"exact"``,
         conservative triangle-box overlap, so no touched voxel is ever lost.
     keep : {"largest", "all"}
@@ -256,11 +257,13 @@ def voxelize(mesh: Any, *, resolution: int | None = None, pitch: float | None = 
     max_memory : float, optional
         Bytes the grid and samples may use; default half the available memory. A grid that
         would not fit is refused before allocation with a suggested resolution.
+    method : str, optional
+        Deprecated name of ``occupancy`` (warns).
 
     Returns
     -------
     CubeModel
-        ``fraction`` holds each cube's filled volume fraction; ``info`` records method, fill,
+        ``fraction`` holds each cube's filled volume fraction; ``info`` records occupancy, fill,
         parts that became solids and shells, samples, components before ``keep``, dropped cubes.
 
     Notes
@@ -273,7 +276,10 @@ def voxelize(mesh: Any, *, resolution: int | None = None, pitch: float | None = 
     vertices = np.asarray(mesh.vertices, dtype=float)
     faces = np.asarray(mesh.faces, dtype=np.int64)
     scale = positive_scalar(scale, "scale")
-    _check_options(fill, method, keep, connectivity, stiffness, len(faces))
+    if method is not None:                                   # the old name of occupancy
+        warnings.warn("voxelize(method=...) is now occupancy=...", DeprecationWarning, stacklevel=2)
+        occupancy = method
+    _check_options(fill, occupancy, keep, connectivity, stiffness, len(faces))
     n_sub = positive_int(subsamples, "subsamples")
     youngs, poisson, density, mat_name = _material_defaults(mesh, youngs, poisson, density)
     if mass is not None:
@@ -318,7 +324,7 @@ def voxelize(mesh: Any, *, resolution: int | None = None, pitch: float | None = 
     n_vertex_only = int((~occupied[tuple(vertex_cells.T)]).sum())
     occupied[tuple(vertex_cells.T)] = True      # every vertex's cube is in the model
     n_exact_only = 0
-    if method == "exact":
+    if occupancy == "exact":
         xcells, _ = overlapping_cells(vertices, faces, origin, pitch, dims)
         new = ~occupied[tuple(xcells.T)]
         n_exact_only = int(new.sum())
@@ -386,7 +392,7 @@ def voxelize(mesh: Any, *, resolution: int | None = None, pitch: float | None = 
     fraction = np.clip(volume / pitch**3, 0.0, 1.0)
     cube_rho = cube_mass / (volume * scale**3) if mass is not None else avg["rho"]
 
-    info = {"method": method, "fill": fill, "stiffness": stiffness, "n_samples": int(len(surf)),
+    info = {"occupancy": occupancy, "fill": fill, "stiffness": stiffness, "n_samples": int(len(surf)),
             "mass_samples": int(len(samples)),
             "sampler": "random" if n_samples is not None else ("points" if cloud else "grid"),
             "spacing": spacing, "shell_thickness": thick if bool(shell_face.any()) else 0.0,

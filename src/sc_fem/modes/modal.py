@@ -259,7 +259,7 @@ class _Solved:
 
 
 def solve_scene(scene, *, n_modes, max_frequency, element, lumped, keep_rigid,
-                method, backend, max_modes, max_memory, progress, **_) -> _Solved:
+                eigensolver, backend, max_modes, max_memory, progress, **_) -> _Solved:
     """Eigenpairs of one lattice; the shifted operator is set up once however often ``k`` grows."""
     from ..fem.assemble import Assembler
     from ..fem.boundary import fixed_dofs
@@ -281,7 +281,7 @@ def solve_scene(scene, *, n_modes, max_frequency, element, lumped, keep_rigid,
     k_cap = min(n - 1, max_modes + n_rigid_expected + 6)
     k = n_rigid_expected + (want if want is not None else 12)
     t0 = time.perf_counter()
-    solver = EigenSolver(K, M, method=method, backend=backend,
+    solver = EigenSolver(K, M, method=eigensolver, backend=backend,
                          near_null=rigid_body_modes(model.nodes_m, asm.free_dofs), max_memory=max_memory)
     scale = solver.lambda_scale
     passes = 0
@@ -360,7 +360,7 @@ def modal(model: Any, *, n_modes: int | None = None, max_frequency: float | None
           resolution: int | str | None = None, tolerance: float = DEFAULT_RESOLUTION_TOLERANCE,
           resolutions=None, fix=None, fix_vertices=None, element: str = DEFAULT_ELEMENT, lumped: bool = False,
           damping_ratio=None, rayleigh=None, keep_rigid: bool = False, keep_lattice: bool = False,
-          method: str = "auto", backend: str = "auto", max_modes: int = 200, max_memory: float | None = None,
+          eigensolver: str = "auto", backend: str = "auto", max_modes: int = 200, max_memory: float | None = None,
           voxelize_options: dict | None = None, progress: bool = False) -> ModalBasis:
     """Vibration modes of a model, baked onto its source mesh.
 
@@ -403,8 +403,9 @@ def modal(model: Any, *, n_modes: int | None = None, max_frequency: float | None
         Keep rigid-body modes (flagged in ``rigid``) instead of removing them.
     keep_lattice : bool
         Keep the lattice and the node modes in the result.
-    method : {"auto", "shift-invert", "lobpcg"}
-        Eigensolver (see :mod:`sc_fem.fem.eigen`); ``"auto"`` decides from a memory estimate.
+    eigensolver : {"auto", "shift-invert", "lobpcg"}
+        See :mod:`sc_fem.fem.eigen`; ``"auto"`` takes the one predicted faster on this machine whose
+        memory fits ``max_memory`` (the reason is in ``eigen["reason"]``).
     backend : {"auto", "cholmod", "cholespy", "splu"}
         Factorization backend for shift-invert.
     max_modes : int
@@ -440,7 +441,7 @@ def modal(model: Any, *, n_modes: int | None = None, max_frequency: float | None
     vopts = dict(voxelize_options or {})
     kw = dict(n_modes=n_modes, max_frequency=max_frequency, element=element, lumped=lumped,
               damping_ratio=damping_ratio, rayleigh=rayleigh, keep_rigid=keep_rigid, keep_lattice=keep_lattice,
-              method=method, backend=backend, max_modes=positive_int(max_modes, "max_modes"),
+              eigensolver=eigensolver, backend=backend, max_modes=positive_int(max_modes, "max_modes"),
               max_memory=max_memory, progress=progress)
     if isinstance(model, Scene):
         given = [k for k, v in (("mesh", mesh), ("fix", fix), ("fix_vertices", fix_vertices),
