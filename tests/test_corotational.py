@@ -201,3 +201,29 @@ def test_spinning_bar_keeps_its_size_where_linear_inflates():
     assert abs(np.degrees(np.arctan2(d[1], d[0])) - 90.0) < 3.0
     # and kept its energy (average acceleration, no damping) within 1 %
     assert np.max(np.abs(co.energy - co.energy[0])) < 1e-2 * co.energy[0]
+
+
+def test_lagged_factor_with_cg_follows_the_factorize_every_step_trajectory():
+    """A soft bar sagging through large rotations: the default solver (an earlier step's factor
+    preconditioning CG, refactorized when CG slows) gives the trajectory of a factorization every
+    step to 1e-8, with far fewer factorizations; the refactorization triggers do fire."""
+    m = CubeModel.box((20, 2, 2), 0.05, youngs=1e5, poisson=0.3, density=1000.0)
+    fixed = np.flatnonzero(m.node_index[:, 0] == 0)
+
+    def run(**kw):
+        integ = Corotational(m, 5e-3, fixed_nodes=fixed, loads=LoadSet(m, [Gravity()]), **kw)
+        states = [integ.step().u.copy() for _ in range(60)]
+        return integ, np.array(states)
+
+    each, u_each = run(max_cg=0)
+    lagged, u_lag = run()
+    tight, _ = run(max_cg=1)
+    assert each.n_factorizations >= 60 and each.cg_iterations == 0
+    assert np.abs(u_each[-1]).max() > 0.1 * m.h * 20          # a large sag: rotations matter
+    np.testing.assert_allclose(u_lag, u_each, rtol=0, atol=1e-8 * np.abs(u_each).max())
+    assert 1 <= lagged.n_factorizations < 30 and lagged.cg_iterations > 0
+    assert tight.n_factorizations > lagged.n_factorizations     # a tighter CG budget refactorizes more
+    with pytest.raises(Exception, match="max_cg"):
+        Corotational(m, 5e-3, fixed_nodes=fixed, max_cg=-1)
+    with pytest.raises(Exception, match="cg_rtol"):
+        Corotational(m, 5e-3, fixed_nodes=fixed, cg_rtol=2.0)

@@ -14,38 +14,14 @@ cube's rotation before measuring the strain:
   that only refills the CSR ``data`` of the pattern built once;
 * strain energy ``1/2 (R^T x_e - X_e) . K_e (R^T x_e - X_e)``.
 
-Each Newmark step linearises at ``u_n`` (``R`` from ``u_n``), factorizes
+Each Newmark step linearises at ``u_n`` (``R`` from ``u_n``), forms
 ``S = M + (1+alpha)(gamma dt C + beta dt^2 K')`` and iterates the residual with this frozen
 tangent, the force always evaluated with the rotations of the current iterate (``iterations``
-passes, default 3; the neglected ``dR/dx`` terms only slow the convergence).
-
-Cost per step against linear Newmark (which re-uses one factorization: one back-solve and a few
-sparse products per step): one batched 3x3 polar decomposition per state (``u_n``, shared by the
-tangent, HHT's ``f_int(u_n)`` and :meth:`energy`; plus one per iterate), one batched rotation
-``R K_e R^T`` of the per-cube element matrices kept from the set-up, one re-assembly (``data``
-refill), one **sparse factorization** and ``iterations`` back-solves. No step loops over cubes
-or materials (voxelized models have a different material in almost every cube). Measured on a
-shared 2-core machine (several runs, so ranges), dt = 1e-4 s, gravity from rest:
-
-* built-in bridge, resolution 12 (96 cubes, 558 free DOFs, ``"z<min+0.05"`` fixed): linear
-  0.12--0.27 ms/step, corotational 5.2--8.6 ms/step, **ratio about 25--35x** (the factorization
-  is about half of the corotational step, the polar decompositions and force evaluations most
-  of the rest; the former per-material loop made it 10--12 ms/step);
-* 10x2x2 cantilever (E = 10 MPa, ``"x<min+0"`` fixed, 270 free DOFs): linear 0.06--0.17
-  ms/step, corotational 2.5--3.5 ms/step, **ratio about 20--45x**.
-
-Reproduce (prints ms/step of both and the ratio per model)::
-
-    python -c "import timeit, sc_fem; from sc_fem.fem.boundary import fixed_nodes as fix; \
-    from sc_fem.lattice.cubes import CubeModel as C; from sc_fem.dynamics import make_integrator as mk; \
-    from sc_fem.dynamics.loads import Gravity, LoadSet; \
-    [print(m.n_cubes, 'cubes, ms/step: newmark %.3f corotational %.2f' % ms, 'ratio %.0f' % (ms[1] / ms[0])) \
-     for m, x in ((sc_fem.voxelize('builtin:bridge', resolution=12), 'z<min+0.05'), \
-                  (C.box((10, 2, 2), 0.05, youngs=1e7, poisson=0.3, density=1e3), 'x<min+0')) \
-     for ms in [tuple(10 * min(timeit.repeat(mk(k, m, 1e-4, fixed_nodes=fix(m, x), \
-                loads=LoadSet(m, [Gravity()])).step, number=100, repeat=5)) for k in ('newmark', 'corotational'))]]"
-
-(``benchmarks/stability.py`` prints the ms/step of every run of its study, corotational included.)
+passes, default 3; the neglected ``dR/dx`` terms only slow the convergence). ``S`` is solved by
+conjugate gradients preconditioned with the factorization of an earlier step's ``S`` -- the
+rotations change little between steps -- and refactorized only when CG needs more than
+``max_cg`` iterations. No step loops over cubes or materials. Cost against linear Newmark and
+how to reproduce it: ``docs/corotational.md``.
 """
 
 from __future__ import annotations
@@ -53,6 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..fem.elements import DEFAULT_ELEMENT, cube_stiffness
+from ..fem.linsolve import factorize
 from ..errors import InputError
 from ..lattice.cubes import HEX_CORNERS, CubeModel
 from .newmark import Newmark
@@ -126,16 +103,32 @@ class Corotational(Newmark):
     ----------
     iterations : int
         Frozen-tangent iterations per step (default 3).
+    max_cg : int
+        The factorization of an earlier step's effective matrix preconditions conjugate gradients
+        on this step's; when a solve needs more than ``max_cg`` iterations the next step
+        refactorizes (``0``: factorize every step). ``n_factorizations`` and ``cg_iterations``
+        count what was done.
+    cg_rtol : float
+        Relative residual at which CG stops.
     **kw
         As :class:`~sc_fem.dynamics.newmark.Newmark`.
     """
 
     name = "corotational"
 
-    def __init__(self, model, dt, *, iterations: int = 3, **kw) -> None:
+    def __init__(self, model, dt, *, iterations: int = 3, max_cg: int = 8, cg_rtol: float = 1e-10, **kw) -> None:
         if not isinstance(model, CubeModel):
             raise InputError(f"model must be a CubeModel, got {type(model).__name__}")
         self.iterations = max(1, int(iterations))
+        self.max_cg = int(max_cg)
+        if self.max_cg < 0:
+            raise InputError(f"max_cg must be >= 0, got {max_cg!r}")
+        self.cg_rtol = float(cg_rtol)
+        if not 0.0 < self.cg_rtol < 1.0:
+            raise InputError(f"cg_rtol must lie in (0, 1), got {cg_rtol!r}")
+        self._pre, self._stale = None, False                    # factorization reused as preconditioner
+        self.n_factorizations = 0
+        self.cg_iterations = 0
         # per-cube element matrices, N/m, (n, 24, 24); needed by the base class's __init__
         # (initial acceleration), hence built before it
         self._Ke = cube_stiffness(model, kw.get("element", DEFAULT_ELEMENT))
@@ -202,4 +195,39 @@ class Corotational(Newmark):
         return Kt
 
     def effective_solver(self, u: np.ndarray):
-        return self._factor(self.tangent(u))
+        """Solver of this step's ``S(u)``: conjugate gradients preconditioned by the factorization of
+        an earlier step's ``S`` (the rotations change little from step to step), refactorized when
+        CG needs more than ``max_cg`` iterations; ``max_cg=0`` factorizes every step."""
+        S = self._effective(self.tangent(u))
+        if self._pre is None or self._stale or self.max_cg == 0:
+            self._pre, self._stale = factorize(S, self.backend), False
+            self.n_factorizations += 1
+            return self._pre
+        return _LaggedFactor(S, self)
+
+
+class _LaggedFactor:
+    """``solve(b)``: ``S x = b`` by CG preconditioned with the owner's (older) factorization."""
+
+    def __init__(self, S, owner: "Corotational") -> None:
+        self.S, self.owner = S, owner
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        from scipy.sparse.linalg import LinearOperator, cg
+
+        o = self.owner
+        pre = LinearOperator(self.S.shape, matvec=o._pre.solve, dtype=float)
+        count = [0]
+
+        def tick(_):
+            count[0] += 1
+
+        x, info = cg(self.S, b, rtol=o.cg_rtol, atol=0.0, maxiter=4 * max(o.max_cg, 1), M=pre, callback=tick)
+        o.cg_iterations += count[0]
+        if info != 0:                        # the old factor no longer preconditions well: refactorize now
+            o._pre = factorize(self.S, o.backend)
+            o.n_factorizations += 1
+            return o._pre.solve(b)
+        if count[0] > o.max_cg:
+            o._stale = True                  # refactorize at the next step
+        return x

@@ -69,11 +69,15 @@ class Newmark(TimeIntegrator):
         """Tangent stiffness at ``u`` (linear: ``K``)."""
         return self.K
 
-    def _factor(self, Kt):
+    def _effective(self, Kt):
+        """The effective matrix ``S`` of a step with tangent ``Kt`` (CSR)."""
         a0, a1 = self.rayleigh
         al, g, b, dt = self.alpha, self.gamma, self.beta, self.dt
         S = (1.0 + (1.0 + al) * g * dt * a0) * self.M + (1.0 + al) * (g * dt * a1 + b * dt * dt) * Kt
-        return factorize(S.tocsr(), self.backend)
+        return S.tocsr()
+
+    def _factor(self, Kt):
+        return factorize(self._effective(Kt), self.backend)
 
     def effective_solver(self, u: np.ndarray):
         """Factorization of ``S`` (linear: computed once and kept)."""
