@@ -99,12 +99,12 @@ coords = st.floats(-1.0, 1.0, allow_nan=False, allow_infinity=False, width=32)
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(tris=st.lists(st.lists(st.tuples(coords, coords, coords), min_size=3, max_size=3), min_size=1, max_size=12),
        res=st.integers(1, 10), fill=st.sampled_from(["surface", "solid"]),
-       method=st.sampled_from(["sample", "exact"]))
-def test_fuzz_random_triangle_soups(tris, res, fill, method):
+       occupancy=st.sampled_from(["sample", "exact"]))
+def test_fuzz_random_triangle_soups(tris, res, fill, occupancy):
     v = np.asarray(tris, dtype=float).reshape(-1, 3)
     f = np.arange(len(v)).reshape(-1, 3)
     try:
-        model = sc_fem.voxelize((v, f), resolution=res, fill=fill, method=method, keep="all")
+        model = sc_fem.voxelize((v, f), resolution=res, fill=fill, occupancy=occupancy, keep="all")
     except ScFemError:
         return                                   # degenerate soups must fail with a clear error only
     assert model.n_cubes >= 1 and np.all(model.mass > 0)
