@@ -53,8 +53,8 @@ def test_every_shared_mesh(tmp_path, shared_meshes):
 
 def test_segments_and_offset_are_counted_and_refused_when_impossible(tmp_path):
     anim = _animation("builtin:rope", tmp_path / "a.npz")
-    one = reconstruct_animation(anim, FIT, segments=1, offset="none")
-    four = reconstruct_animation(anim, FIT, segments=4, offset="first")
+    one = reconstruct_animation(anim, FIT, segments=1, offset="none", curves_from="mesh")
+    four = reconstruct_animation(anim, FIT, segments=4, offset="first", curves_from="mesh")
     assert one.meta["segments"] == 1 and four.meta["segments"] == 4 and four.meta["offset"] == "first"
     # every piece carries its 96 constants and 6 rigid numbers per fitted frame; offset="first"
     # adds the stored first frame (3 per point of every 17-point piece); r and alpha are shared
@@ -67,4 +67,61 @@ def test_segments_and_offset_are_counted_and_refused_when_impossible(tmp_path):
     from sc_fem.errors import InputError
 
     with pytest.raises(InputError, match="at least 8"):
-        reconstruct_animation(anim, FIT, segments=20)
+        reconstruct_animation(anim, FIT, segments=20, curves_from="mesh")
+
+
+def test_simulate_stores_the_lattice_and_reconstruct_maps_its_node_lines_back_exactly(tmp_path):
+    """simulate writes the lattice (node motion + W); reconstruct fits its node lines and rebuilds
+    the mesh through W -- closer to the simulated mesh than curves of mesh vertices. A lattice whose
+    node lines are incomplete (the chair) is refused with the reason."""
+    from sc_fem.io.animation import load_animation
+
+    scene = Scene.from_mesh("builtin:beam", resolution=24, fix="x<min+1e-9", youngs=1e6, poisson=0.3, density=1000)
+    rec = run_simulation(scene, dt=0.01, duration=0.2, gravity=True, fps=100)
+    anim = load_animation(write_animation(tmp_path / "a.npz", scene, rec))
+    L = anim.lattice
+    assert L is not None and L.displacements.shape == (anim.n_frames, len(L.rest), 3)
+    moved = anim.rest_vertices[None] + np.einsum("vq,tqc->tvc", L.W.toarray(), L.displacements)
+    scale = np.abs(anim.positions - anim.rest_vertices).max()
+    np.testing.assert_allclose(moved, anim.positions, rtol=0, atol=1e-6 * scale)   # float32 storage
+
+    lat = reconstruct_animation(anim, FIT, curves_from="lattice")
+    mesh = reconstruct_animation(anim, FIT)                       # auto: no stored curves -> mesh curves
+    assert lat.meta["curves_from"] == "lattice" and mesh.meta["curves_from"] == "mesh"
+    assert lat.curves_reference.shape[1:] == (16, 25, 3)         # 4 x 4 node lines of 25 nodes
+    # the mesh rebuilt through W from the fitted node lines is several times closer to the
+    # simulated mesh than the one moved by inverse distance from curves of vertices
+    assert lat.mesh_error_pde.max() < 0.5 * mesh.mesh_error_pde.max()
+    assert lat.E_M_pde.max() < 0.01
+    out = tmp_path / "r.npz"                                      # the same from the command line
+    assert main(["reconstruct", str(tmp_path / "a.npz"), "--fit-frames", ",".join(map(str, FIT)),
+                 "--curves-from", "lattice", "-o", str(out)]) == 0
+    back = load_reconstruction(out)
+    assert back.meta["curves_from"] == "lattice"
+    np.testing.assert_allclose(back.vertices_pde, lat.vertices_pde, rtol=0, atol=1e-6)
+
+    chair = load_animation(_animation("builtin:chair", tmp_path / "c.npz"))
+    assert chair.lattice is not None
+    from sc_fem.errors import InputError
+
+    with pytest.raises(InputError, match="complete"):
+        reconstruct_animation(chair, FIT, curves_from="lattice")
+    with pytest.raises(InputError, match="curves_from"):
+        reconstruct_animation(chair, FIT, curves_from="nodes")
+
+
+def test_a_broken_lattice_track_is_a_file_format_error(tmp_path):
+    from sc_fem.errors import FileFormatError
+    from sc_fem.io.animation import load_animation
+
+    path = _animation("builtin:beam", tmp_path / "a.npz")
+    data = dict(np.load(path))
+    for key, bad in (("lattice_displacements", data["lattice_displacements"][:-1]),
+                     ("lattice_W_indices", data["lattice_W_indices"] + 10**6),
+                     ("lattice_rest", None)):
+        broken = {k: v for k, v in data.items() if not (bad is None and k == key)}
+        if bad is not None:
+            broken[key] = bad
+        np.savez(tmp_path / "b.npz", **broken)
+        with pytest.raises(FileFormatError, match="lattice|embedding"):
+            load_animation(tmp_path / "b.npz")

@@ -48,6 +48,10 @@ def register(subparsers) -> None:
     p.add_argument("--offset", choices=("auto", "none", "first"), default="auto",
                    help="none (the paper): the PDE models the curves; first: their motion away from the first "
                         "fitted frame (stored, 3 numbers per point more); auto (default): none, then first")
+    p.add_argument("--curves-from", choices=("auto", "stored", "lattice", "mesh"), default="auto",
+                   help="stored: the file's curves; lattice: the cube lattice's node lines that sc-fem simulate "
+                        "stores (mapped back to the mesh exactly, the most accurate mesh; bar-like lattices); "
+                        "mesh: curves of mesh vertices; auto (default): stored if the file has curves, else mesh")
     p.set_defaults(func=run)
 
 
@@ -84,7 +88,7 @@ def run(args) -> int:
         anim, parse_frames(args.fit_frames, anim.n_frames), n_curves=args.curves, n_points=args.points, r=args.r,
         alpha=args.alpha, parametrization=args.parametrization, criterion=args.criterion,
         rigid_interpolation=args.rigid_interpolation, remove_rigid=not args.no_rigid, n_control=args.n_control,
-        offset=args.offset, segments=_segments(args.segments))
+        offset=args.offset, segments=_segments(args.segments), curves_from=args.curves_from)
     result = replace(result, meta={**result.meta, "source": str(args.animation)})
     save_reconstruction(args.output, result)
     if args.report:

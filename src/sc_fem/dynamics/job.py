@@ -10,6 +10,9 @@ import numpy as np
 from .._validate import positive_scalar
 from ..errors import InputError
 
+LATTICE_TRACK_BYTES = 256 * 2**20
+"""Largest recorded node-displacement history (bytes) that a run keeps for its animation file."""
+
 ENERGY_GAIN_WARN = 0.05
 """Energy gained (fraction of the largest kinetic + elastic energy) past which a run is flagged."""
 
@@ -144,7 +147,10 @@ def run_simulation(scene, *, dt: float, duration: float, method: str = "newmark"
         J = impulse_nodes(scene, impulses)
         if J is not None:
             integ.set_velocity_from_impulse(J)
-    rec = record(integ, n_steps, scene=scene, every=every, progress=progress, keep_u=False)
+    # node displacements go into the animation file (the exact lattice map of ``sc-fem reconstruct``)
+    # unless they would take more than LATTICE_TRACK_BYTES of memory
+    keep_u = (n_steps // every + 1) * model.n_nodes * 24 <= LATTICE_TRACK_BYTES
+    rec = record(integ, n_steps, scene=scene, every=every, progress=progress, keep_u=keep_u)
     dtc = integ.dt_crit if method == "central" else None
     warnings = []
     if rec.energy_drift > ENERGY_GAIN_WARN and gust is None:

@@ -17,6 +17,14 @@ displacements      (T, n, 3) f32    vertex positions minus rest positions, model
 energy             (T,) float64     kinetic + elastic + gravity potential, J (NaN if unknown)
 meta_json          () str           JSON dict: method, dt, material, source, ...
 curves (optional)  (T, C, P, 3) f8  curves on the surface (e.g. the XPBD rope's 24 x 832), model units
+lattice_*          (optional)       the cube lattice of the run, written by ``sc-fem simulate``:
+                                    ``lattice_node_index`` (q, 3) int (grid indices of the nodes),
+                                    ``lattice_rest`` (q, 3) f8 node rest positions and
+                                    ``lattice_displacements`` (T, q, 3) f4 their motion, model
+                                    units; ``lattice_W_data`` / ``_indices`` / ``_indptr``: the
+                                    embedding W (n, q) in CSR form, so vertex displacements are
+                                    ``W @ lattice_displacements[t]`` (``sc-fem reconstruct`` fits
+                                    the lattice's node lines and maps them back exactly)
 =================  ===============  =====================================================
 
 Further optional arrays may be stored with ``save_animation(..., extra={...})``; readers ignore
@@ -28,6 +36,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -69,10 +78,78 @@ class Animation:
     energy: np.ndarray
     meta: dict = field(default_factory=dict)
     curves: np.ndarray | None = None
+    lattice: "LatticeTrack | None" = None
 
     @property
     def n_frames(self) -> int:
         return len(self.times)
+
+
+@dataclass(frozen=True, eq=False)
+class LatticeTrack:
+    """The cube lattice behind a vertex animation (see the module's schema).
+
+    Attributes
+    ----------
+    node_index : ndarray of int, shape (q, 3)
+        Grid indices of the lattice nodes.
+    rest : ndarray, shape (q, 3)
+        Node rest positions, model units.
+    displacements : ndarray, shape (T, q, 3)
+        Node displacements per frame, model units.
+    W : scipy.sparse.csr_matrix, shape (n, q)
+        Embedding of the source vertices: vertex displacement = ``W @`` node displacement.
+    """
+
+    node_index: np.ndarray
+    rest: np.ndarray
+    displacements: np.ndarray
+    W: Any
+
+    @property
+    def dims(self) -> np.ndarray:
+        """Cubes along each grid axis spanned by the nodes, shape (3,)."""
+        return np.ptp(self.node_index, axis=0)
+
+
+_LATTICE_KEYS = ("lattice_node_index", "lattice_rest", "lattice_displacements", "lattice_W_data",
+                 "lattice_W_indices", "lattice_W_indptr")
+
+
+def lattice_arrays(scene, node_displacements_m: np.ndarray) -> dict:
+    """The ``lattice_*`` arrays of a run of ``scene`` whose node displacements (T, q, 3) are in metres."""
+    W = scene.W.tocsr()
+    return {"lattice_node_index": np.asarray(scene.model.node_index, dtype=np.int32),
+            "lattice_rest": np.asarray(scene.model.nodes, dtype=np.float64),
+            "lattice_displacements": (np.asarray(node_displacements_m) / scene.model.scale).astype(np.float32),
+            "lattice_W_data": W.data, "lattice_W_indices": W.indices.astype(np.int64),
+            "lattice_W_indptr": W.indptr.astype(np.int64)}
+
+
+def _read_lattice(path, data, n_vertices: int, n_frames: int) -> LatticeTrack | None:
+    present = [k for k in _LATTICE_KEYS if k in data]
+    if not present:
+        return None
+    if len(present) != len(_LATTICE_KEYS):
+        raise FileFormatError(f"{path}: incomplete lattice arrays (missing "
+                              f"{sorted(set(_LATTICE_KEYS) - set(present))})")
+    import scipy.sparse as sp
+
+    ni, rest, disp = data["lattice_node_index"], data["lattice_rest"], data["lattice_displacements"]
+    q = len(rest)
+    if ni.shape != (q, 3) or rest.shape != (q, 3) or disp.shape != (n_frames, q, 3):
+        raise FileFormatError(f"{path}: lattice arrays disagree in shape: node_index {ni.shape}, rest "
+                              f"{rest.shape}, displacements {disp.shape} for {n_frames} frames")
+    try:
+        W = sp.csr_matrix((data["lattice_W_data"], data["lattice_W_indices"], data["lattice_W_indptr"]),
+                          shape=(n_vertices, q))
+        W.check_format(full_check=True)
+    except ValueError as exc:
+        raise FileFormatError(f"{path}: the stored embedding is not a valid ({n_vertices}, {q}) matrix: {exc}") from None
+    disp = disp.astype(np.float64)
+    if not (np.all(np.isfinite(rest)) and np.all(np.isfinite(disp)) and np.all(np.isfinite(W.data))):
+        raise FileFormatError(f"{path}: non-finite lattice values")
+    return LatticeTrack(node_index=ni.astype(np.int64), rest=rest.astype(np.float64), displacements=disp, W=W)
 
 
 def _check(faces, rest, times, positions, energy) -> None:
@@ -157,8 +234,9 @@ def load_animation(path) -> Animation:
             raise FileFormatError(f"{path}: curves contain {int(np.count_nonzero(~np.isfinite(curves)))} "
                                 "non-finite value(s)")
     meta = json.loads(str(data.get("meta_json", "{}")))
+    lattice = _read_lattice(path, data, len(rest), len(times))
     return Animation(faces=faces, rest_vertices=rest, times=times, positions=positions,
-                     energy=energy, meta=meta, curves=curves)
+                     energy=energy, meta=meta, curves=curves, lattice=lattice)
 
 
 ANIMATION_OUTPUTS = (".npz", ".xdmf", ".mp4", ".gif")
@@ -214,7 +292,8 @@ def write_animation(path, scene, rec, *, exaggerate: float = 1.0, fps: float = 5
     if kind == ".npz":
         meta = {k: v for k, v in rec.info.items() if k != "warnings"}
         return save_animation(path, faces=faces, rest_vertices=rest, times=rec.times, positions=rec.points,
-                              energy=rec.energy, meta=meta)
+                              energy=rec.energy, meta=meta,
+                              extra=lattice_arrays(scene, rec.u) if len(rec.u) == len(rec.times) else None)
     if kind == ".xdmf":
         return write_xdmf(path, rest, faces, rec.times, rec.points)
     from .render import render_animation
