@@ -462,3 +462,19 @@ def test_blow_up_message_suggests_substeps_that_are_stable():
     for _ in solver.run(60):                                              # one second, no blow-up
         pass
     assert np.all(np.isfinite(solver.state.positions))
+
+
+def test_stability_sweep_measures_the_error_against_a_reference():
+    """With a static FEM reference (and damping so the run settles) each row carries a finite error
+    that grows when the substeps are too long to converge; a reference of the wrong shape is refused.
+    (The ``reference`` path once failed on a missing import; benchmarks/xpbd.py uses it.)"""
+    import sc_fem
+
+    m, fixed = _bar()
+    ref = sc_fem.solve_static(m, fix="x<min+1e-9", gravity=(0, 0, -9.81)).displacements
+    rows = stability_sweep(m, [2e-4, 2e-3], duration=0.6, fixed_nodes=fixed, reference=ref, damping=200.0,
+                           constraints="corotational")
+    assert all(np.isfinite(r.error) and not r.blew_up for r in rows)
+    assert rows[0].error < 0.2 and rows[1].error > rows[0].error
+    with pytest.raises(Exception, match="reference"):
+        stability_sweep(m, [2e-4], duration=0.1, fixed_nodes=fixed, reference=ref[:, :2])

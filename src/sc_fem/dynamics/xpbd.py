@@ -22,7 +22,7 @@ import numpy as np
 
 from .._validate import as_float_array, as_points, positive_int, positive_scalar
 from ..errors import InputError, InstabilityError
-from ..lattice.cubes import HEX_CORNERS, CubeModel
+from ..lattice.cubes import CubeModel
 from .base import Energy
 from .corotational import centre_F, polar_rotation
 from .xpbd_kernels import (MATCHING_KIND, MATCHINGS, S_REF, _as_fixed, _scatter_add, _volume_terms, corotational_terms, cube_colors,

@@ -8,7 +8,7 @@ import numpy as np
 from .._validate import as_indices
 from ..errors import BoundaryConditionError
 from ..lattice.cubes import HEX_CORNERS, CubeModel
-from .corotational import DN_CENTRE, centre_F, cofactor, polar_rotation
+from .corotational import DN_CENTRE, centre_F, cofactor
 
 def _reference_laplacian() -> np.ndarray:
     """``L_ab = int_unit cube grad N_a . grad N_b`` (8, 8), exact by 2x2x2 Gauss."""

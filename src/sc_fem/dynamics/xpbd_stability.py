@@ -7,10 +7,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import positive_scalar
+from .._validate import as_points, positive_scalar
 from ..errors import InstabilityError
 from ..lattice.cubes import CubeModel
 from .xpbd import XPBDSolver
+
 
 @dataclass(frozen=True)
 class StabilityRow:
