@@ -24,6 +24,11 @@ def execute(path: Path) -> None:
     NotebookClient(nb, timeout=1200, kernel_name="python3", resources={"metadata": {"path": str(HERE)}}).execute()
     for cell in nb.cells:                                     # stable files: no execution timing noise
         cell.metadata.pop("execution", None)
+    roots = (HERE.parent, Path(sys.prefix), Path.home(), Path(tempfile.gettempdir()))
+    leaked = [str(p) for p in roots if str(p) in nbformat.writes(nb)]
+    if leaked:                                                # stored outputs go to a code host
+        raise SystemExit(f"{path.name}: an output names a path of this machine ({', '.join(leaked)}); "
+                         "silence or reword it before storing the outputs")
     fd, tmp = tempfile.mkstemp(suffix=".ipynb", dir=path.parent)
     os.close(fd)
     try:

@@ -11,6 +11,7 @@ import functools
 import os
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -72,7 +73,12 @@ def pv():
         No OpenGL context could be made.
     """
     ensure_rendering()
-    import pyvista
+    with warnings.catch_warnings():
+        # importing pyvista imports pooch, which imports tqdm.auto: in a Jupyter kernel without
+        # ipywidgets that prints a TqdmWarning (with this machine's site-packages path) although
+        # no progress bar is ever shown
+        warnings.filterwarnings("ignore", message="IProgress not found")
+        import pyvista
 
     pyvista.OFF_SCREEN = True
     return pyvista
