@@ -117,7 +117,7 @@ def main(argv=None) -> int:
                     help="skip the modes and bake stages above this many cubes (they take longest)")
     ap.add_argument("--compare", type=int, default=46240,
                     help="cubes of the size where shift-invert and LOBPCG run side by side (default: the "
-                         "160 x 16 x 16-node cantilever of 138,720 free DOFs; 0 to skip)")
+                         "92 x 23 x 23-cube cantilever of 158,976 free DOFs; 0 to skip)")
     args = ap.parse_args(argv)
     sizes = args.sizes or ((10_000, 30_000, 100_000) if args.quick else (10_000, 30_000, 100_000, 300_000, 1_000_000))
     rows, series = [], {s: [] for s in ("voxelize", "assemble", "modes", "bake")}

@@ -12,7 +12,7 @@ compared with linear FEM (``solve_static``, default element; first period from `
 same lattice's K, M, shift-invert with a small negative sigma), as ratios, with ms/frame at 60 fps,
 side by side with the peers' figures measured while planning (not re-run here).  Then a large
 substep sweep (0.1-16 ms) on a coarser bar: energy growth and blow-up per constraint family
-(``sc_fem.dynamics.xpbd.stability_sweep``).  Writes benchmarks/out/xpbd.png.
+(``sc_fem.dynamics.xpbd_stability.stability_sweep``).  Writes benchmarks/out/xpbd.png.
 
 Usage: python benchmarks/xpbd.py [--quick]     (default ~3-4 min, --quick < 1 min on 2 cores)
 """
@@ -31,7 +31,8 @@ from _common import print_table, save_figure  # noqa: E402
 
 from sc_fem.errors import InstabilityError  # noqa: E402
 from sc_fem.lattice.cubes import CubeModel  # noqa: E402
-from sc_fem.dynamics.xpbd import XPBDSolver, stability_sweep  # noqa: E402
+from sc_fem.dynamics.xpbd import XPBDSolver  # noqa: E402
+from sc_fem.dynamics.xpbd_stability import stability_sweep  # noqa: E402
 
 # peers, measured while planning on the same bar (not re-run here): (name, sag / linear FEM, ms/frame)
 PEER_TAG = " (measured while planning)"

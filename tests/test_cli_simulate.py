@@ -152,3 +152,20 @@ def test_up_axis_turns_gravity_and_the_ground(tmp_path):
     d = a.positions[-1] - a.rest_vertices
     assert d[:, 1].min() < 0 and np.abs(d[:, 2]).max() < 0.02 * np.abs(d[:, 1]).max()     # (Poisson: 0.7 %)
     assert a.meta["up"] == "y" and a.meta["ground"] == -0.06
+
+
+
+def test_y_up_ground_is_a_plane_across_y(tmp_path):
+    """A y-up beam dropped onto a ground 2 mm below it: it falls along -y (4.4 mm of free fall in
+    0.03 s) and comes to rest on the plane y = ground -- a z-normal ground would let it through."""
+    out = tmp_path / "drop_y.npz"
+    base = ["simulate", "builtin:beam", "--resolution", "10", "--youngs", "1e6", "--gravity", "--up", "y",
+            "--method", "corotational", "--duration", "0.03", "--dt", "5e-4", "--rayleigh", "0", "1e-4",
+            "--no-progress", "--quiet"]
+    ground = -0.05 - 0.002                                       # the beam spans y in [-0.05, 0.05]
+    assert main(base + ["--ground", repr(ground), "-o", str(out)]) == 0
+    a = load_animation(out)
+    assert a.rest_vertices[:, 1].min() == pytest.approx(-0.05)
+    assert a.positions[..., 1].min() >= ground - 1e-6 * 0.1       # tolerance 1e-6 pitch
+    assert a.positions[-1, :, 1].min() < ground + 1e-4            # it fell onto the ground
+    assert np.abs(a.positions[..., 2] - a.rest_vertices[None, :, 2]).max() < 1e-3   # not along z

@@ -14,6 +14,7 @@ from sc_fem.dynamics import corotational as corot_mod
 from sc_fem.dynamics.corotational import Corotational, cube_rotations, polar_rotation
 from sc_fem.dynamics.loads import Gravity, LoadSet
 from sc_fem.dynamics.newmark import Newmark
+from sc_fem.errors import InputError
 from sc_fem.lattice.cubes import HEX_CORNERS, CubeModel
 
 
@@ -223,7 +224,7 @@ def test_lagged_factor_with_cg_follows_the_factorize_every_step_trajectory():
     np.testing.assert_allclose(u_lag, u_each, rtol=0, atol=1e-8 * np.abs(u_each).max())
     assert 1 <= lagged.n_factorizations < 30 and lagged.cg_iterations > 0
     assert tight.n_factorizations > lagged.n_factorizations     # a tighter CG budget refactorizes more
-    with pytest.raises(Exception, match="max_cg"):
+    with pytest.raises(InputError, match="max_cg"):
         Corotational(m, 5e-3, fixed_nodes=fixed, max_cg=-1)
-    with pytest.raises(Exception, match="cg_rtol"):
+    with pytest.raises(InputError, match="cg_rtol"):
         Corotational(m, 5e-3, fixed_nodes=fixed, cg_rtol=2.0)

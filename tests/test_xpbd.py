@@ -10,7 +10,8 @@ import pytest
 from sc_fem.errors import BoundaryConditionError, InputError, InstabilityError, ScFemError
 from sc_fem.lattice.cubes import HEX_CORNERS, CubeModel
 from sc_fem.fem.static import solve_static
-from sc_fem.dynamics.xpbd import XPBDSolver, cube_colors, simulate_xpbd, stability_sweep
+from sc_fem.dynamics.xpbd import XPBDSolver, cube_colors, simulate_xpbd
+from sc_fem.dynamics.xpbd_stability import stability_sweep
 
 
 def _holey_model():
@@ -476,5 +477,9 @@ def test_stability_sweep_measures_the_error_against_a_reference():
                            constraints="corotational")
     assert all(np.isfinite(r.error) and not r.blew_up for r in rows)
     assert rows[0].error < 0.2 and rows[1].error > rows[0].error
-    with pytest.raises(Exception, match="reference"):
+    with pytest.raises(InputError, match="reference"):
         stability_sweep(m, [2e-4], duration=0.1, fixed_nodes=fixed, reference=ref[:, :2])
+    with pytest.raises(InputError, match="reference"):
+        stability_sweep(m, [2e-4], duration=0.1, fixed_nodes=fixed, reference=ref[:-1])
+    with pytest.raises(InputError, match="zero"):
+        stability_sweep(m, [2e-4], duration=0.1, fixed_nodes=fixed, reference=0 * ref)

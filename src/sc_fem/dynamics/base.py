@@ -16,11 +16,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_float_array, positive_scalar
+from .._validate import as_float_array, as_indices, positive_scalar
 from ..fem.assemble import Assembler
 from ..fem.boundary import fixed_dofs as _fixed_dofs
 from ..fem.elements import DEFAULT_ELEMENT
-from ..errors import InputError
+from ..errors import BoundaryConditionError, InputError
 from ..lattice.cubes import CubeModel
 from ..fem.linsolve import factorize
 from .driver import State
@@ -86,9 +86,9 @@ class TimeIntegrator:
         self.dt = positive_scalar(dt, "dt")
         self.element = element
         self.backend = backend
-        fn = np.zeros(0, dtype=np.int64) if fixed_nodes is None else np.unique(np.asarray(fixed_nodes, dtype=np.int64))
-        if fn.size and (fn.min() < 0 or fn.max() >= model.n_nodes):
-            raise InputError(f"fixed_nodes must lie in [0, {model.n_nodes}), got range [{fn.min()}, {fn.max()}]")
+        fn = (np.zeros(0, dtype=np.int64) if fixed_nodes is None else
+              np.unique(as_indices(fixed_nodes, model.n_nodes, "fixed_nodes", allow_mask=True,
+                                   error=BoundaryConditionError)))
         self.fixed_nodes = fn
         t0 = _time.perf_counter()
         self.asm = Assembler(model, element, fixed_dofs=_fixed_dofs(fn))

@@ -62,6 +62,10 @@ class Ground:
     z: float = 0.0
     axis: int = 2
 
+    def __post_init__(self) -> None:
+        if self.axis not in (0, 1, 2) or isinstance(self.axis, bool):
+            raise InputError(f"Ground axis must be 0, 1 or 2 (x, y, z), got {self.axis!r}")
+
     def depth(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Signed depth (n,) model units (> 0 below the plane) and normal (n, 3)."""
         n = np.zeros_like(p)

@@ -211,11 +211,14 @@ class _LaggedFactor:
 
     def __init__(self, S, owner: "Corotational") -> None:
         self.S, self.owner = S, owner
+        self.exact = False                   # the owner's factor is of this S (refactorized mid-step)
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         from scipy.sparse.linalg import LinearOperator, cg
 
         o = self.owner
+        if self.exact:
+            return o._pre.solve(b)
         pre = LinearOperator(self.S.shape, matvec=o._pre.solve, dtype=float)
         count = [0]
 
@@ -227,6 +230,7 @@ class _LaggedFactor:
         if info != 0:                        # the old factor no longer preconditions well: refactorize now
             o._pre = factorize(self.S, o.backend)
             o.n_factorizations += 1
+            self.exact = True
             return o._pre.solve(b)
         if count[0] > o.max_cg:
             o._stale = True                  # refactorize at the next step

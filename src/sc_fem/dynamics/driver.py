@@ -98,8 +98,12 @@ def _blowup_message(integ, state_time: float, step: int, why: str) -> str:
         crit = f"dt_crit = {dtc:.4g} s (dt / dt_crit = {integ.dt / dtc:.3g})"
     except Exception as exc:  # noqa: BLE001 - the message must still be raised
         crit = f"dt_crit could not be computed ({exc})"
-    hint = ("use dt < dt_crit or an implicit method (--method newmark)" if not integ.implicit
-            else "reduce dt or add damping")
+    if integ.name == "xpbd":
+        hint = "use more substeps (or constraints='corotational')"
+    elif not integ.implicit:
+        hint = "use dt < dt_crit or an implicit method (--method newmark)"
+    else:
+        hint = "reduce dt or add damping"
     return (f"{integ.name} blew up at step {step} (t = {state_time:.6g} s, dt = {integ.dt:.4g} s): {why}; "
             f"explicit stability limit {crit}; {hint}. Nothing was written.")
 

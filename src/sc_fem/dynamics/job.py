@@ -7,7 +7,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .._validate import positive_scalar
+from .._validate import as_float_array, positive_scalar
 from ..errors import InputError
 
 LATTICE_TRACK_BYTES = 256 * 2**20
@@ -54,7 +54,10 @@ def impulse_nodes(scene, impulses) -> np.ndarray | None:
     if not impulses:
         return None
     n = scene.rest_vertices.shape[0]
-    arr = np.asarray(impulses, dtype=float).reshape(-1, 4)
+    arr = as_float_array(impulses, "impulses")
+    if arr.size % 4:
+        raise InputError(f"impulses are (vertex, Jx, Jy, Jz) quadruples, got {arr.size} numbers")
+    arr = arr.reshape(-1, 4)
     idx = arr[:, 0]
     bad = ~(np.mod(idx, 1) == 0) | (idx < 0) | (idx >= n)
     if np.any(bad):
@@ -131,9 +134,7 @@ def run_simulation(scene, *, dt: float, duration: float, method: str = "newmark"
     else:
         loads = [Gravity(g)] if gravity else []
         if gust is not None:
-            fx, fy, fz, secs = (float(x) for x in gust)
-            if not secs > 0:
-                raise InputError(f"gust duration must be > 0 s, got {secs:g}")
+            fx, fy, fz, secs = as_float_array(gust, "gust (Fx, Fy, Fz, seconds)", (4,))
             loads.append(VertexForce(np.arange(len(verts)), np.array([fx, fy, fz]) / len(verts), half_sine(secs)))
         loadset = LoadSet(model, loads, points=verts, faces=scene.faces, W=scene.W)
         contact = Contact(model, verts, obstacles, W=scene.W) if obstacles else None

@@ -121,6 +121,7 @@ class XPBDSolver:
         v[self.fixed_mask] = 0.0
         self._x, self._v = x, v
         self.time, self.n_steps = 0.0, 0
+        self._energy_cache = (None, None)          # (positions array, its energy)
         self.last_energy_growth = 0.0
         """Energy growth (see :meth:`energy_growth`) after the last :meth:`step`."""
         self.h = model.h
@@ -463,7 +464,16 @@ class XPBDSolver:
         return float(np.sum(c["C"] ** 2 / (2 * self._alpha)))
 
     def energy(self, state: XPBDState | None = None) -> XPBDEnergy:
-        """Kinetic + gravity potential (relative to rest) + elastic energy, J."""
+        """Kinetic + gravity potential (relative to rest) + elastic energy, J (of the current state,
+        computed once per state: :meth:`step` evaluates it for its blow-up check)."""
+        if state is None and self._energy_cache[0] is self._x:
+            return self._energy_cache[1]
+        e = self._energy_of(state)
+        if state is None:
+            self._energy_cache = (self._x, e)
+        return e
+
+    def _energy_of(self, state: XPBDState | None) -> XPBDEnergy:
         x = self._x if state is None else state.positions
         v = self._v if state is None else state.velocities
         kin = 0.5 * float(np.sum(self.mass[:, None] * v * v))
@@ -482,10 +492,3 @@ def simulate_xpbd(model: CubeModel, dt: float, n_steps: int, *, substeps: int = 
                         gravity=gravity, fixed_nodes=fixed_nodes, damping=damping, gauss_seidel=gauss_seidel,
                         warm_start=warm_start, **kw)
     yield from solver.run(n_steps, progress=progress)
-
-
-def stability_sweep(*args, **kw):
-    """See :func:`sc_fem.dynamics.xpbd_stability.stability_sweep` (kept here for existing imports)."""
-    from .xpbd_stability import stability_sweep as sweep
-
-    return sweep(*args, **kw)

@@ -40,11 +40,8 @@ class XPBDIntegrator:
                  substeps: int = 20, iterations: int = 1, constraints: str = "neohookean",
                  damping: float = 0.0) -> None:
         t0 = _time.perf_counter()
-        fixed = np.zeros(model.n_nodes, dtype=bool)
-        if fixed_nodes is not None and len(fixed_nodes):
-            fixed[np.asarray(fixed_nodes, dtype=np.int64)] = True
         self.solver = XPBDSolver(model, dt, substeps=substeps, iterations=iterations, constraints=constraints,
-                                 gravity=gravity, fixed_nodes=fixed, damping=damping)
+                                 gravity=gravity, fixed_nodes=fixed_nodes, damping=damping)
         self.model, self.dt = model, self.solver.dt
         g = tuple(float(x) for x in self.solver.gravity)
         self.loads = LoadSet(model, [Gravity(g)] if any(g) else [])
@@ -58,7 +55,9 @@ class XPBDIntegrator:
 
     @property
     def state(self) -> State:
-        s = self.solver.state
+        return self._as_state(self.solver.state)
+
+    def _as_state(self, s) -> State:
         return State(time=s.time, u=s.positions - self.solver.rest, v=s.velocities,
                      a=np.zeros_like(s.velocities), step=s.step)
 
@@ -66,8 +65,7 @@ class XPBDIntegrator:
         return self.solver.energy()
 
     def step(self) -> State:
-        self.solver.step()           # raises InstabilityError naming the substep that is too long
-        return self.state
+        return self._as_state(self.solver.step())   # raises InstabilityError naming the too-long substep
 
     @property
     def dt_crit(self) -> float:

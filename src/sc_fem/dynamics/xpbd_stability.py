@@ -7,8 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_points, positive_scalar
-from ..errors import InstabilityError
+from .._validate import as_float_array, positive_scalar
+from ..errors import InputError, InstabilityError
 from ..lattice.cubes import CubeModel
 from .xpbd import XPBDSolver
 
@@ -73,7 +73,11 @@ def stability_sweep(model: CubeModel, substep_sizes, *, duration: float = 0.5, f
     duration = positive_scalar(duration, "duration")
     if frame_dt is not None:
         frame_dt = positive_scalar(frame_dt, "frame_dt")
-    ref = None if reference is None else as_points(reference, "reference")
+    ref = None
+    if reference is not None:
+        ref = as_float_array(reference, "reference", (model.n_nodes, 3))
+        if not np.linalg.norm(ref) > 0:
+            raise InputError("reference is zero everywhere: no displacement to measure an error against")
     rows = []
     for ds in np.atleast_1d(np.asarray(substep_sizes, dtype=float)):
         ds = positive_scalar(float(ds), "substep_sizes")
