@@ -125,3 +125,17 @@ def test_a_broken_lattice_track_is_a_file_format_error(tmp_path):
         np.savez(tmp_path / "b.npz", **broken)
         with pytest.raises(FileFormatError, match="lattice|embedding"):
             load_animation(tmp_path / "b.npz")
+
+
+def test_surface_point_curves_store_no_vertex_index_and_bad_counts_are_input_errors(tmp_path):
+    """A box of 8 vertices gets its curves through points on its surface: those are not mesh
+    vertices, so no ``curve_vertex_index`` is stored (it once indexed past the 8 vertices);
+    non-integer piece or control-point counts are refused, not truncated."""
+    from sc_fem.errors import InputError
+
+    anim = _animation("builtin:beam", tmp_path / "a.npz")
+    res = reconstruct_animation(anim, FIT, curves_from="mesh")
+    assert res.curve_vertex_index is None and res.vertices_pde.shape[1] == 8
+    for bad in ({"segments": 2.7}, {"segments": "x"}, {"n_control": 7.5}):
+        with pytest.raises(InputError):
+            reconstruct_animation(anim, FIT, **bad)

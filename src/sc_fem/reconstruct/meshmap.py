@@ -71,15 +71,20 @@ def mesh_vertices(model, t, W, rest_curves, rest_vertices) -> np.ndarray:
     -------
     ndarray, shape (n, 3) or (nt, n, 3)
     """
+    moved = curves_to_vertices(np.asarray(model.evaluate(t)), W, rest_curves, rest_vertices)
+    return moved[0] if np.ndim(t) == 0 else moved
+
+
+def curves_to_vertices(curves, W, rest_curves, rest_vertices) -> np.ndarray:
+    """``rest_vertices + W @ (curves - rest_curves)`` for curves (C, P, 3) or (nt, C, P, 3): shape
+    (nt, n, 3), one sparse product for all frames (``W`` (n, C*P) as in :func:`mesh_vertices`)."""
     rc = np.asarray(rest_curves, dtype=float).reshape(-1, 3)
     rv = as_points(rest_vertices, "rest_vertices")
     if W.shape != (len(rv), len(rc)):
         raise InputError(f"W must have shape ({len(rv)}, {len(rc)}), got {W.shape}")
-    curves = np.asarray(model.evaluate(t))
-    disp = curves.reshape(-1, len(rc), 3) - rc                     # (nt, C*P, 3)
+    disp = np.asarray(curves, dtype=float).reshape(-1, len(rc), 3) - rc          # (nt, C*P, 3)
     nt = len(disp)
-    moved = rv + (W @ disp.transpose(1, 0, 2).reshape(len(rc), nt * 3)).reshape(len(rv), nt, 3).transpose(1, 0, 2)
-    return moved[0] if np.ndim(t) == 0 else moved
+    return rv + (W @ disp.transpose(1, 0, 2).reshape(len(rc), nt * 3)).reshape(len(rv), nt, 3).transpose(1, 0, 2)
 
 
 def lattice_lines(model, axis: int | None = None) -> np.ndarray:

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._validate import positive_int
 from ..errors import InputError
 
 RECON_KIND = "sc_fem.reconstruction"
@@ -135,7 +136,7 @@ def reconstruct_animation(animation, fit_frames, *, n_curves: int = 8, n_points:
     """
     from ..io.animation import Animation, load_animation
     from .bspline import bspline_baseline
-    from .meshmap import curve_mesh_map, extract_curves, mesh_vertices
+    from .meshmap import curve_mesh_map, curves_to_vertices, extract_curves
     from .metrics import errors
     from .pde import check_frame_indices
     from .segments import fit_segmented, max_segments
@@ -143,8 +144,11 @@ def reconstruct_animation(animation, fit_frames, *, n_curves: int = 8, n_points:
     anim = animation if isinstance(animation, Animation) else load_animation(animation)
     fit_idx = check_frame_indices(np.asarray(fit_frames), anim.n_frames, name="fit_frames")
     frames = np.arange(fit_idx[0], fit_idx[-1] + 1)
+    if segments != "auto":
+        segments = positive_int(segments, "segments")
+    n_control = positive_int(n_control, "n_control")
     source, lines = _curve_source(anim, curves_from)
-    curves, idx = (anim.curves if source == "stored" else None), None
+    curves, idx, on_surface = (anim.curves if source == "stored" else None), None, False
     if source == "lattice":
         L = anim.lattice
         nodes = L.rest[None] + L.displacements                              # (T, q, 3)
@@ -155,11 +159,12 @@ def reconstruct_animation(animation, fit_frames, *, n_curves: int = 8, n_points:
             # too few vertices for the curves (a box of 8): curves through points on the surface,
             # each moving with the vertices of its triangle (barycentric, fixed per point)
             rest, moving = _surface_points(anim, n_curves * n_points)
+            on_surface = True
         idx = extract_curves(rest, n_curves, n_points)
         curves = moving[:, idx].astype(np.float64)                          # (T, C, P, 3)
     times = np.asarray(anim.times, dtype=float)
     t0 = time.perf_counter()
-    bs = bspline_baseline(curves, times, fit_idx, n_control=min(int(n_control), curves.shape[2]))
+    bs = bspline_baseline(curves, times, fit_idx, n_control=min(n_control, curves.shape[2]))
     bs_curves = bs.evaluate(times[frames])
     t_bs = time.perf_counter() - t0
     ref = curves[frames]
@@ -170,7 +175,7 @@ def reconstruct_animation(animation, fit_frames, *, n_curves: int = 8, n_points:
         top = max_segments(n_p)
         tries = sorted({*(2 ** k for k in range(8) if 2 ** k < top), top})
     else:
-        tries = [int(segments)]
+        tries = [segments]
     offsets = ("none", "first") if offset == "auto" else (offset,)
     t0 = time.perf_counter()
     budget = BUDGET * bs.n_parameters
@@ -184,30 +189,25 @@ def reconstruct_animation(animation, fit_frames, *, n_curves: int = 8, n_points:
         matches = bool(e_pde.E_A[fitted].mean() <= e_bs.E_A[fitted].mean()
                        and e_pde.E_M[fitted].max() <= e_bs.E_M[fitted].max())
         if best is None or matches or e_pde.E_A[fitted].mean() < best[2].E_A[fitted].mean():
-            best = (model, pde_curves, e_pde, off)
+            best = (model, pde_curves, e_pde, off, matches)
         if matches or (segments == "auto" and model.n_parameters > budget):
             break                       # as good as the baseline, or no longer a compact model
-    model, pde_curves, e_pde, off = best
-    matches = bool(e_pde.E_A[fitted].mean() <= e_bs.E_A[fitted].mean()
-                   and e_pde.E_M[fitted].max() <= e_bs.E_M[fitted].max())
+    model, pde_curves, e_pde, off, matches = best
     t_pde = time.perf_counter() - t0
     extra = {}
-    if source == "lattice":
-        L = anim.lattice
-        q = len(L.rest)
-        node_u = np.empty((len(frames), q, 3))
-        node_u[:, lines.ravel()] = pde_curves.reshape(len(frames), -1, 3) - L.rest[lines.ravel()][None]
-        verts = anim.rest_vertices[None] + np.stack([np.asarray(L.W @ node_u[k]) for k in range(len(frames))])
+    if source != "stored":
+        if source == "lattice":         # exact: every node is on one line, W maps nodes to vertices
+            W, rest_curves, rest_verts = anim.lattice.W[:, lines.ravel()], anim.lattice.rest[lines], anim.rest_vertices
+        else:                           # vertices follow the curve points near them at the first fitted frame
+            f0 = fit_idx[0]
+            W = curve_mesh_map(curves[f0], anim.positions[f0], k=4)
+            rest_curves, rest_verts = curves[f0], anim.positions[f0]
+        verts = curves_to_vertices(pde_curves, W, rest_curves, rest_verts)
         diag = float(np.linalg.norm(np.ptp(anim.rest_vertices, axis=0)))
         extra = dict(vertices_pde=verts.astype(np.float32),
                      mesh_error_pde=np.linalg.norm(verts - anim.positions[frames], axis=-1).mean(axis=1) / diag)
-    elif idx is not None:
-        f0 = fit_idx[0]
-        w = curve_mesh_map(curves[f0], anim.positions[f0], k=4)
-        verts = mesh_vertices(model, times[frames], w, curves[f0], anim.positions[f0])
-        diag = float(np.linalg.norm(np.ptp(anim.rest_vertices, axis=0)))
-        extra = dict(curve_vertex_index=idx, vertices_pde=verts.astype(np.float32),
-                     mesh_error_pde=np.linalg.norm(verts - anim.positions[frames], axis=-1).mean(axis=1) / diag)
+        if source == "mesh" and not on_surface:       # the curves' points are mesh vertices
+            extra["curve_vertex_index"] = idx
     counts = {"PDE scalars (coefficients + r, alpha + rigid)": int(model.n_parameters),
               "PDE constants, paper's count (32 per curve piece)": 32 * int(model.model.n_curves),
               "B-spline scalars": int(bs.n_parameters), "B-spline control points (paper's count)": int(bs.n_control_points),
@@ -231,6 +231,7 @@ CURVE_SOURCES = ("auto", "stored", "lattice", "mesh")
 def _curve_source(anim, curves_from: str):
     """``(source, lattice lines or None)`` for :func:`reconstruct_animation`'s ``curves_from``."""
     from .meshmap import lattice_lines
+    from .segments import MIN_POINTS
 
     if curves_from not in CURVE_SOURCES:
         raise InputError(f"curves_from must be one of {list(CURVE_SOURCES)}, got {curves_from!r}")
@@ -242,8 +243,9 @@ def _curve_source(anim, curves_from: str):
         if anim.lattice is None:
             raise InputError("the animation stores no lattice (write it with sc-fem simulate)")
         lines = lattice_lines(anim.lattice)          # InputError for lattices with holes or branches
-        if lines.shape[1] < 4:
-            raise InputError(f"the lattice's node lines have only {lines.shape[1]} nodes; need at least 4")
+        if lines.shape[1] < MIN_POINTS:
+            raise InputError(f"the lattice's node lines have only {lines.shape[1]} nodes; a fit needs at least "
+                             f"{MIN_POINTS} (a finer resolution)")
         return "lattice", lines
     return "mesh", None
 
