@@ -103,3 +103,16 @@ def test_version_1_files_are_still_read(tmp_path, rng):
     b = load_animation(tmp_path / "v1.npz")
     np.testing.assert_allclose(b.positions, a["positions"], rtol=1e-6, atol=1e-6)
     assert b.meta == {"method": "x"}
+
+
+def test_xdmf_into_a_missing_folder_is_created_and_an_unwritable_one_is_an_output_error(tmp_path):
+    from sc_fem.errors import OutputError
+    from sc_fem.io.animation import write_xdmf
+
+    rest = np.zeros((3, 3))
+    rest[1, 0] = rest[2, 1] = 1.0
+    out = write_xdmf(tmp_path / "new" / "a.xdmf", rest, np.array([[0, 1, 2]]), [0.0, 0.1], np.stack([rest, rest]))
+    assert out.exists() and out.with_suffix(".h5").exists()
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(OutputError):
+        write_xdmf(tmp_path / "file" / "a.xdmf", rest, np.array([[0, 1, 2]]), [0.0], rest[None])

@@ -61,3 +61,13 @@ def test_without_dask_runs_serially_and_scheduler_is_refused(tmp_path, monkeypat
     assert load_modes(res.rows[0]["output"]).n_modes == 3
     with pytest.raises(InputError, match="dask"):
         run_batch(["builtin:beam"], tmp_path / "out2", options=OPTS, scheduler="tcp://127.0.0.1:1")
+
+
+def test_one_fix_spec_as_a_string(tmp_path):
+    """``fix`` as one spec string (as modal takes it): it was split into single characters."""
+    from sc_fem.modes.batch import precompute_one
+
+    row = precompute_one("builtin:beam", str(tmp_path / "b.npz"), {"fix": "x<min+0.01", "n_modes": 2, "resolution": 8})
+    assert row["status"] == "ok", row["error"]
+    row = precompute_one("/nonexistent/x.obj", str(tmp_path / "x.npz"), {"fix": ["default"], "n_modes": 2})
+    assert row["status"] == "error" and "not found" in row["error"]

@@ -10,6 +10,7 @@ from sc_fem.fem.eigen import rigid_body_modes, solve_eigen
 from sc_fem.errors import InputError, SolverError
 from sc_fem.lattice.cubes import CubeModel
 from sc_fem.fem.linsolve import available_backends
+from sc_fem.lattice.voxelize import voxelize
 from sc_fem.modes.modal import damping_ratios, modal
 
 
@@ -247,3 +248,18 @@ def test_auto_method_picks_the_solver_predicted_faster_here():
     cross = [n for n in (10_000, 20_000, 40_000, 80_000, 160_000)
              if eigen.choose_method(n, 81 * n, 6, max_memory=big)[0] == "lobpcg"]
     assert cross and cross[0] >= 40_000                   # the crossover is near 47k DOFs on this machine
+
+
+def test_old_names_warn_and_contradictions_are_errors():
+    """``modal(method=)`` and ``ModalBasis.fixed`` (renamed eigensolver= / fix_record) still work
+    with a DeprecationWarning; an old and a new name that disagree are an error, not a silent pick."""
+    m = CubeModel.box((6, 2, 2), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
+    with pytest.warns(DeprecationWarning, match="eigensolver"):
+        old = modal(m, n_modes=2, fix="x<min+0", method="lobpcg")
+    assert old.eigen["method"] == "lobpcg"
+    with pytest.warns(DeprecationWarning, match="fix_record"):
+        assert old.fixed == old.fix_record and old.fix_record["n_nodes"] == 9
+    with pytest.raises(InputError, match="contradicts"), pytest.warns(DeprecationWarning):
+        modal(m, n_modes=2, fix="x<min+0", method="lobpcg", eigensolver="shift-invert")
+    with pytest.raises(InputError, match="contradicts"), pytest.warns(DeprecationWarning):
+        voxelize("builtin:beam", resolution=8, method="sample", occupancy="exact")

@@ -141,12 +141,9 @@ def run_precompute(args) -> int:
     from ..modes.auto import format_resolution_table
     from ..modes.modal import modal
     from ..io.modes import save_modes
-    from ..geometry.models import expand_fix
 
     timings: dict = {}
-    opts = _modal_options(args)
-    if opts["fix"]:                                    # "default": the built-in model's supports
-        opts["fix"] = expand_fix(opts["fix"], meshes[0])
+    opts = _modal_options(args)                        # modal expands --fix default (the built-in's supports)
     with stage("load + voxelize + modes", timings, args.quiet):
         basis = modal(meshes[0], progress=not args.quiet, **opts)   # modal loads the mesh (and times it)
     with stage("write", timings, args.quiet):

@@ -258,7 +258,11 @@ def write_xdmf(path, rest: np.ndarray, faces: np.ndarray, times, positions) -> P
     path = Path(path)
     cells = [("triangle", np.asarray(faces, dtype=np.int64))] if len(faces) else \
         [("vertex", np.arange(len(rest), dtype=np.int64)[:, None])]
-    tmpdir = Path(tempfile.mkdtemp(prefix=f".{path.stem}.", dir=path.parent))
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmpdir = Path(tempfile.mkdtemp(prefix=f".{path.stem}.", dir=path.parent))
+    except OSError as exc:
+        raise OutputError(f"cannot write {path}: {exc}") from None
     try:
         cwd = os.getcwd()
         os.chdir(tmpdir)                      # meshio names the .h5 after the .xdmf, relative to it

@@ -278,6 +278,8 @@ def voxelize(mesh: Any, *, resolution: int | None = None, pitch: float | None = 
     scale = positive_scalar(scale, "scale")
     if method is not None:                                   # the old name of occupancy
         warnings.warn("voxelize(method=...) is now occupancy=...", DeprecationWarning, stacklevel=2)
+        if occupancy not in ("sample", method):
+            raise InputError(f"method={method!r} (the old name of occupancy) contradicts occupancy={occupancy!r}")
         occupancy = method
     _check_options(fill, occupancy, keep, connectivity, stiffness, len(faces))
     n_sub = positive_int(subsamples, "subsamples")

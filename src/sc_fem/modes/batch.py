@@ -94,20 +94,10 @@ def precompute_one(mesh: str, output: str, options: dict) -> dict:
     row: dict[str, Any] = {k: "" for k in SUMMARY_FIELDS}
     row.update(mesh=mesh, output=output)
     try:
-        from ..errors import BoundaryConditionError
-        from ..geometry.mesh import load_mesh
         from .modal import modal
         from ..io.modes import save_modes
-        from ..geometry.models import expand_fix
 
-        opts = dict(options)
-        fix = opts.pop("fix", None)
-        try:
-            fix = expand_fix(list(fix), mesh) if fix else None
-        except BoundaryConditionError:   # "default" on a file: report an unreadable file first
-            load_mesh(mesh)
-            raise
-        basis = modal(mesh, fix=fix, **opts)              # modal loads the mesh (once)
+        basis = modal(mesh, **dict(options))             # modal loads the mesh (once) and expands "default"
         save_modes(basis, output)
         f = basis.frequencies[~basis.rigid]
         row.update(status="ok", cubes=basis.n_cubes, dofs=basis.n_dofs, n_modes=basis.n_modes,

@@ -152,6 +152,14 @@ class ModalBasis:
     fixed_points: np.ndarray | None = None
 
     @property
+    def fixed(self) -> dict:
+        """Deprecated name of :attr:`fix_record` (warns)."""
+        import warnings
+
+        warnings.warn("ModalBasis.fixed is now fix_record", DeprecationWarning, stacklevel=2)
+        return self.fix_record
+
+    @property
     def n_modes(self) -> int:
         """Number of modes ``k``."""
         return len(self.frequencies)
@@ -361,7 +369,7 @@ def modal(model: Any, *, n_modes: int | None = None, max_frequency: float | None
           resolutions=None, fix=None, fix_vertices=None, element: str = DEFAULT_ELEMENT, lumped: bool = False,
           damping_ratio=None, rayleigh=None, keep_rigid: bool = False, keep_lattice: bool = False,
           eigensolver: str = "auto", backend: str = "auto", max_modes: int = 200, max_memory: float | None = None,
-          voxelize_options: dict | None = None, progress: bool = False) -> ModalBasis:
+          voxelize_options: dict | None = None, progress: bool = False, method: str | None = None) -> ModalBasis:
     """Vibration modes of a model, baked onto its source mesh.
 
     Parameters
@@ -417,6 +425,8 @@ def modal(model: Any, *, n_modes: int | None = None, max_frequency: float | None
         Keyword arguments for :func:`sc_fem.voxelize` (``scale``, ``youngs``, ``fill``, ...).
     progress : bool
         Print stage messages to stderr.
+    method : str, optional
+        Deprecated name of ``eigensolver`` (warns).
 
     Returns
     -------
@@ -429,6 +439,13 @@ def modal(model: Any, *, n_modes: int | None = None, max_frequency: float | None
     SolverError
         The eigensolver failed or the problem does not fit in memory.
     """
+    if method is not None:                     # the old name of eigensolver
+        import warnings
+
+        warnings.warn("modal(method=...) is now eigensolver=...", DeprecationWarning, stacklevel=2)
+        if eigensolver not in ("auto", method):
+            raise InputError(f"method={method!r} (the old name of eigensolver) contradicts eigensolver={eigensolver!r}")
+        eigensolver = method
     from ..scene import Scene
 
     element = check_element(element)
