@@ -1,4 +1,4 @@
-"""Geometry: reading and repairing the source mesh, the built-in models, sampling, inside tests."""
+"""Geometry: reading and validating the source mesh, the built-in models, sampling, inside tests."""
 
 from .._lazy import lazy_getattr
 
