@@ -230,3 +230,27 @@ def test_partly_filled_cubes_pass_the_patch_test(element):
 
     volume = (m.moments[part, 0] + FCM_ALPHA) * m.h ** 3                # filled + the FCM share of the cube
     np.testing.assert_allclose(energy, density * volume, rtol=1e-9)
+
+
+@pytest.mark.parametrize("element", ["q1", "q1i"])
+def test_patch_test_holds_for_a_millimetre_part_far_from_the_origin(element):
+    """The same patch test on a sphere of radius 500 mm centred at (1, -2, 5) m: the moments are
+    taken relative to each cube and ``h`` is the edge in metres (pitch x scale), so the energy
+    density times the filled volume in m^3 must still come out exactly."""
+    import trimesh
+
+    from sc_fem.fem.elements import FCM_ALPHA, moment_stiffness
+    from sc_fem.lattice.cubes import HEX_CORNERS
+
+    s = trimesh.creation.icosphere(3, 500.0)
+    s.apply_translation((1e3, -2e3, 5e3))
+    m = sc_fem.voxelize(s, resolution=8, fill="solid", scale=1e-3)
+    assert m.h == pytest.approx(m.pitch * 1e-3)
+    part = np.flatnonzero(m.fraction < 1 - 1e-9)
+    lam, mu = m.lame(material=True)
+    eps = np.array([[1e-3, 2e-4, 0.0], [2e-4, -5e-4, 1e-4], [0.0, 1e-4, 3e-4]])
+    u = (HEX_CORNERS * m.h @ eps.T).ravel()
+    k = moment_stiffness(element, m.moments[part], lam[part], mu[part], m.h).reshape(-1, 24, 24)
+    energy = np.einsum("i,nij,j->n", u, k, u)
+    density = lam[part] * np.trace(eps) ** 2 + 2 * mu[part] * np.sum(eps * eps)
+    np.testing.assert_allclose(energy, density * (m.moments[part, 0] + FCM_ALPHA) * m.h ** 3, rtol=1e-9)

@@ -262,7 +262,6 @@ def test_thin_cantilever_one_cube_thick_bends_like_a_beam():
 
 # ---------------------------------------------------------------- 7. automatic resolution
 @pytest.mark.slow
-@pytest.mark.slow
 def test_auto_resolution_converges_on_the_chair_and_settles_on_the_bridge():
     chair = sc_fem.modal("builtin:chair", resolution="auto", n_modes=4, fix="z<min+0.01")
     table = chair.resolution_table

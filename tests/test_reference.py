@@ -62,6 +62,9 @@ def test_reference_gravity_follows_the_given_vector():
     down_y = solve_reference(bar, n_tets=300, n_modes=1, clamp=clamp, gravity=(0.0, -9.81, 0.0), **STEEL)
     along = solve_reference(bar, n_tets=300, n_modes=1, clamp=clamp, gravity=(-9.81, 0.0, 0.0), **STEEL)
     assert down_y.max_displacement == pytest.approx(down_z.max_displacement, rel=0.05)
+    # and each sags along its own gravity (a swap of y and z would pass the magnitudes above)
+    vz, vy = down_z.max_displacement_vector, down_y.max_displacement_vector
+    assert vz[2] < -0.99 * np.linalg.norm(vz) and vy[1] < -0.99 * np.linalg.norm(vy)
     # cantilever tip sag q L^4 / (8 E I) = 6.18e-5 m; pulled along its axis it stretches 1000x less
     assert down_z.max_displacement == pytest.approx(7850 * 0.01 * 9.81 / (8 * 200e9 * 0.1**4 / 12), rel=0.1)
     assert along.max_displacement < 0.01 * down_z.max_displacement

@@ -65,3 +65,23 @@ def test_default_supports_of_a_builtin_and_the_records():
         Scene.from_mesh(_mm_box(), resolution=6, scale=1e-3, fix="default")
     with pytest.raises(InputError, match="needs the source mesh"):
         Scene.from_model(scene.model, fix_vertices=[0])
+
+
+def test_a_millimetre_part_off_the_origin_behaves_like_the_same_part_in_metres_at_the_origin():
+    """Modes and static sag of the off-origin millimetre box equal those of the 0.4 x 0.1 x 0.1 m box
+    at the origin: units and placement change nothing physical (y-up gravity, one end held)."""
+    mm = Scene.from_mesh(_mm_box(), resolution=8, scale=1e-3, fix="x<min+1", youngs=1e7, poisson=0.3,
+                         density=1000)
+    box_m = trimesh.creation.box(extents=(0.4, 0.1, 0.1))
+    m = Scene.from_mesh(box_m, resolution=8, fix="x<min+0.001", youngs=1e7, poisson=0.3, density=1000)
+    assert mm.model.n_cubes == m.model.n_cubes and len(mm.fixed_nodes) == len(m.fixed_nodes)
+    fa, fb = sc_fem.modal(mm, n_modes=4), sc_fem.modal(m, n_modes=4)
+    np.testing.assert_allclose(fa.frequencies, fb.frequencies, rtol=1e-9)
+    # the first pair is degenerate: compare the spanned subspaces, modes in metres per unit coordinate
+    A, B = fa.modes[:2].reshape(2, -1).T, fb.modes[:2].reshape(2, -1).T
+    cosines = np.linalg.svd(np.linalg.qr(A)[0].T @ np.linalg.qr(B)[0], compute_uv=False)   # principal angles
+    np.testing.assert_allclose(cosines, 1.0, atol=1e-6)
+    sa = sc_fem.solve_static(mm, gravity=(0, -9.81, 0))
+    sb = sc_fem.solve_static(m, gravity=(0, -9.81, 0))
+    np.testing.assert_allclose(sa.vertex_displacements, sb.vertex_displacements, atol=1e-9 * np.abs(sb.vertex_displacements).max())
+    assert sb.vertex_displacements[:, 1].min() < 0

@@ -84,7 +84,7 @@ def check_material(youngs: np.ndarray, poisson: np.ndarray, density: np.ndarray 
 
 def as_indices(value: Any, n: int, name: str, *, allow_mask: bool = False, allow_empty: bool = True,
                error: type = InputError) -> np.ndarray:
-    """Sorted-as-given int64 indices into ``range(n)`` from a 1-D integer array (or, with
+    """int64 indices (in the order given) into ``range(n)`` from a 1-D integer array (or, with
     ``allow_mask``, a bool mask of shape (n,)); ``error`` names the bad dtype, shape or range."""
     arr = np.atleast_1d(np.asarray(value))
     if allow_mask and arr.dtype == bool:

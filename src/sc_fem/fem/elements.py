@@ -412,12 +412,9 @@ def moment_stiffness(element: str, moments: np.ndarray, lam: np.ndarray, mu: np.
     element = check_element(element)
     if element not in MOMENT_ELEMENTS:
         raise InputError(f"element {element!r} has no moment integration; use one of {sorted(MOMENT_ELEMENTS)}")
-    from ..lattice.moments import FULL
-
     p = _polynomial_parts(element)
     d = p["lambda"].shape[1]
-    M = np.asarray(moments, dtype=np.float64)
-    M = M + FCM_ALPHA * (M[:, :1] < 1.0 - 1e-12) * FULL
+    M = _with_fcm_share(moments)
     k = (M @ p["lambda"].reshape(27, -1)) * (lam * h)[:, None] + (M @ p["mu"].reshape(27, -1)) * (mu * h)[:, None]
     k = k.reshape(-1, d, d)
     if element == "q1i":
@@ -430,17 +427,26 @@ def moment_stiffness(element: str, moments: np.ndarray, lam: np.ndarray, mu: np.
     return k.reshape(-1, 576)
 
 
-def moment_mass(moments: np.ndarray, masses: np.ndarray) -> np.ndarray:
-    """Consistent mass matrices (n, 576) of cubes whose mass ``masses`` (n,) kg is distributed
-    like their filled region (``moments`` (n, 27); ``moments[:, 0]`` the filled fraction)."""
+PARTIAL_BELOW = 1.0 - 1e-12
+"""A cube whose filled fraction is below this is partly filled."""
+
+
+def _with_fcm_share(moments) -> np.ndarray:
+    """Moments (n, 27) of the filled region plus :data:`FCM_ALPHA` of the full cube's for partly
+    filled cubes (the finite cell method's regularisation)."""
     from ..lattice.moments import FULL
 
     M = np.asarray(moments, dtype=np.float64)
-    # round-off in the moments of slivers must not make M indefinite, and (as for the stiffness) a
-    # node that only a sliver reaches keeps FCM_ALPHA of a full cube's mass shape: the cube's
-    # mass is unchanged (normalised below) but M stays invertible (measured: the chair at
-    # resolution 10 had a 726 x 726 M that Cholesky called singular without it)
-    M = M + 1e-8 * M[:, :1] * FULL + FCM_ALPHA * (M[:, :1] < 1.0 - 1e-12) * FULL
+    return M + FCM_ALPHA * (M[:, :1] < PARTIAL_BELOW) * FULL
+
+
+def moment_mass(moments: np.ndarray, masses: np.ndarray) -> np.ndarray:
+    """Consistent mass matrices (n, 576) of cubes whose mass ``masses`` (n,) kg is distributed
+    like their filled region (``moments`` (n, 27); ``moments[:, 0]`` the filled fraction)."""
+    # as for the stiffness, a node that only a sliver reaches keeps FCM_ALPHA of a full cube's mass
+    # shape: the cube's mass is unchanged (normalised below) but M stays invertible (measured: the
+    # chair at resolution 10 had a 726 x 726 M that Cholesky called singular without it)
+    M = _with_fcm_share(moments)
     unit = M @ _polynomial_parts("q1")["mass"].reshape(27, -1)          # integral of N N^T over the fill
     return unit * (np.asarray(masses, dtype=np.float64) / M[:, 0])[:, None]
 
@@ -456,7 +462,7 @@ def cube_stiffness_chunks(model, element: str) -> Callable[[int, int], np.ndarra
         return stiffness_chunks(element, *model.lame(), h)
     lam, mu = model.lame(material=True)
     ref = stiffness_chunks(element, lam, mu, h)
-    partial = model.fraction < 1.0 - 1e-12
+    partial = model.fraction < PARTIAL_BELOW
     mom = model.moments
 
     def chunk(s: int, e: int) -> np.ndarray:

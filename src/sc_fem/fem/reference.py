@@ -74,6 +74,8 @@ class ReferenceSolution:
         Seconds per stage (mesh, assemble, eigen, static).
     repair : str
         What was done to the surface before meshing.
+    max_displacement_vector : ndarray, shape (3,), or None
+        The displacement (m) of the node that moves most in the clamped case.
     """
 
     mass: float
@@ -83,6 +85,7 @@ class ReferenceSolution:
     n_dofs: int
     timings: dict = field(default_factory=dict)
     repair: str = ""
+    max_displacement_vector: np.ndarray | None = None
 
     @property
     def seconds(self) -> float:
@@ -240,7 +243,7 @@ def solve_reference(mesh: Any, *, youngs: float, poisson: float, density: float,
     k_typ = float(K.diagonal().mean() / max(M.diagonal().mean(), 1e-300))
     freqs = _free_free(K, M, n_modes, 1e-4 * k_typ)
     timings["eigen"] = time.perf_counter() - t0
-    umax = None
+    umax = uvec = None
     if clamp is not None:
         t0 = time.perf_counter()
         held = np.asarray(clamp(basis.doflocs.T), dtype=bool)
@@ -250,6 +253,8 @@ def solve_reference(mesh: Any, *, youngs: float, poisson: float, density: float,
         free = np.flatnonzero(~held)
         u = np.zeros(basis.N)
         u[free] = factorize(sp.csr_matrix(K)[free][:, free].tocsc()).solve(f[free])
-        umax = float(np.linalg.norm(u[basis.nodal_dofs].T, axis=1).max())
+        un = u[basis.nodal_dofs].T                                      # (nodes, 3)
+        i = int(np.argmax(np.linalg.norm(un, axis=1)))
+        umax, uvec = float(np.linalg.norm(un[i])), un[i].copy()
         timings["static"] = time.perf_counter() - t0
-    return ReferenceSolution(total_mass, freqs, umax, len(tm.tets), int(basis.N), timings, tm.repair)
+    return ReferenceSolution(total_mass, freqs, umax, len(tm.tets), int(basis.N), timings, tm.repair, uvec)

@@ -214,7 +214,7 @@ class CubeModel:
         h = positive_scalar(pitch, "pitch") * positive_scalar(scale, "scale")
         return cls.from_cells(cells, origin=origin, pitch=pitch, scale=scale, dims=shape,
                               mass=density * h**3, youngs=youngs, poisson=poisson, density=density,
-                              info={"method": "box"})
+                              info={"occupancy": "box"})
 
     # ------------------------------------------------------------------ derived
     @property
