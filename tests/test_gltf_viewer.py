@@ -65,6 +65,11 @@ def test_modes_become_morph_targets_that_two_readers_agree_on(chair_modes, tmp_p
         want = np.asarray(basis.modes[k], dtype=np.float64) * s[k] / basis.scale
         np.testing.assert_allclose(read(tgt["POSITION"]), want, rtol=2e-6, atol=2e-7 * np.abs(want).max())
     np.testing.assert_allclose(read(prim.attributes.POSITION), basis.vertices, rtol=1e-6, atol=1e-6)
+    # the promise behind the scale: at weight 1 every mode's largest vertex displacement is 5 % of
+    # the bounding-box diagonal
+    diag = np.linalg.norm(np.ptp(basis.vertices, axis=0))
+    peaks = [np.linalg.norm(read(t["POSITION"]), axis=1).max() for t in prim.targets]
+    np.testing.assert_allclose(peaks, 0.05 * diag, rtol=1e-5)
     # an independent reader: trimesh sees the same surface
     mesh = trimesh.load(glb, force="mesh")
     assert len(mesh.faces) == len(basis.faces)
@@ -96,6 +101,34 @@ def test_baked_playback_is_the_exact_modal_response(chair_modes, tmp_path):
     np.testing.assert_allclose(w * s, q, rtol=1e-5, atol=1e-6 * np.abs(q).max())
     assert len(t) == 21 and abs(t[-1] - 0.5) < 1e-6
     assert _validate(out)["numErrors"] == 0
+
+
+def test_baked_mode_release_starts_at_weight_one(chair_modes, tmp_path):
+    """``--mode K``: mode K released from weight 1 (a visible amplitude) rings down alone at its own
+    frequency; the other weights stay 0. impulse and mode together are refused."""
+    import pygltflib
+
+    from sc_fem.errors import InputError
+    from sc_fem.io.gltf import gltf_document
+
+    basis, npz = chair_modes
+    out = tmp_path / "m.glb"
+    assert main(["export", str(npz), "-o", str(out), "--mode", "1", "--duration", "0.5", "--fps", "40",
+                 "--quiet"]) == 0
+    doc = pygltflib.GLTF2().load(str(out))
+    sam = doc.animations[0].samplers[doc.animations[0].channels[0].sampler]
+    blob = doc.binary_blob()
+    t_acc, w_acc = doc.accessors[sam.input], doc.accessors[sam.output]
+    t = np.frombuffer(blob, np.float32, t_acc.count, doc.bufferViews[t_acc.bufferView].byteOffset).astype(float)
+    w = np.frombuffer(blob, np.float32, w_acc.count, doc.bufferViews[w_acc.bufferView].byteOffset).reshape(len(t), -1)
+    assert w[0, 1] == pytest.approx(1.0, rel=1e-6)
+    assert np.abs(np.delete(w, 1, axis=1)).max() < 1e-6
+    om, z = 2 * np.pi * basis.frequencies[1], basis.damping[1]
+    wd = om * np.sqrt(1 - z * z)
+    free = np.exp(-z * om * t) * (np.cos(wd * t) + z * om / wd * np.sin(wd * t))   # released from rest
+    np.testing.assert_allclose(w[:, 1], free, atol=1e-5)
+    with pytest.raises(InputError, match="not both"):
+        gltf_document(npz, impulse=(0, [1.0, 0, 0]), mode=1)
 
 
 def test_animation_export_and_its_limit(tmp_path):

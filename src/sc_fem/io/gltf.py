@@ -170,6 +170,8 @@ def gltf_document(source, *, amplitude: float = DEFAULT_AMPLITUDE, impulse=None,
               "target_names": [f"mode {k}: {f:.4g} Hz" for k, f in enumerate(basis.frequencies)]}
     if impulse is None and mode is None:
         return _document(basis.vertices, basis.faces, targets, np.zeros(basis.n_modes), extras)
+    if impulse is not None and mode is not None:
+        raise InputError("give impulse or mode for the baked playback, not both")
     player = ModalPlayer(basis)
     if impulse is not None:
         vertex, J = impulse
