@@ -116,3 +116,16 @@ def test_xdmf_into_a_missing_folder_is_created_and_an_unwritable_one_is_an_outpu
     (tmp_path / "file").write_text("x")
     with pytest.raises(OutputError):
         write_xdmf(tmp_path / "file" / "a.xdmf", rest, np.array([[0, 1, 2]]), [0.0], rest[None])
+
+
+def test_a_lattice_track_that_would_not_read_back_is_not_written(tmp_path):
+    from sc_fem.io.animation import save_animation
+
+    rest = np.zeros((3, 3))
+    bad = {"lattice_node_index": np.zeros((2, 3), int), "lattice_rest": np.zeros((2, 3)),
+           "lattice_displacements": np.zeros((5, 2, 3), np.float32),          # 5 frames, the animation has 2
+           "lattice_W_data": np.ones(3), "lattice_W_indices": np.zeros(3, int), "lattice_W_indptr": np.arange(4)}
+    with pytest.raises(InputError, match="lattice"):
+        save_animation(tmp_path / "a.npz", faces=np.zeros((0, 3), int), rest_vertices=rest, times=[0.0, 0.1],
+                       positions=np.stack([rest, rest]), extra=bad)
+    assert not (tmp_path / "a.npz").exists()

@@ -42,7 +42,7 @@ import numpy as np
 
 from .._atomic import save_npz_atomic
 from ._npz import read_versioned_npz
-from .._validate import as_float_array
+from .._validate import as_float_array, positive_scalar
 from ..errors import InputError, FileFormatError
 
 ANIMATION_FORMAT_VERSION = 2
@@ -186,6 +186,10 @@ def save_animation(path, *, faces, rest_vertices, times, positions, energy=None,
     clash = _RESERVED & set(extra)
     if clash:
         raise InputError(f"extra arrays may not use the reserved keys {sorted(clash)}")
+    try:                                  # never write a lattice track that load_animation would refuse
+        _read_lattice("lattice arrays", {k: np.asarray(v) for k, v in extra.items()}, len(rest), len(times))
+    except FileFormatError as exc:
+        raise InputError(str(exc)) from None
     return save_npz_atomic(
         path, format_version=np.int64(ANIMATION_FORMAT_VERSION), kind=np.str_(ANIMATION_KIND),
         faces=faces, rest_vertices=rest, times=times, displacements=(positions - rest[None]).astype(np.float32),
@@ -303,10 +307,12 @@ def write_animation(path, scene, rec, *, exaggerate: float = 1.0, fps: float = 5
     from .render import render_animation
 
     from ..dynamics.contact import obstacles_from
+    from ..dynamics.job import up_axis
 
+    exaggerate = positive_scalar(exaggerate, "exaggerate")
     info = rec.info
     up = str(info.get("up", "z"))
-    obstacles = obstacles_from(info.get("ground"), info.get("sphere"), info.get("box"), up="xyz".index(up))
+    obstacles = obstacles_from(info.get("ground"), info.get("sphere"), info.get("box"), up=up_axis(up))
     frames = rest[None] + exaggerate * (rec.points - rest[None])
     title = title or f"{scene.source} {rec.method}" + (f" (x{exaggerate:g})" if exaggerate != 1 else "")
     return render_animation(frames, faces, path, fps=min(fps, 30.0), title=title, progress=progress,
