@@ -149,8 +149,9 @@ class Scene:
         return self.rest_vertices + self.vertex_displacements(u)
 
     def forces_to_nodes(self, f) -> np.ndarray:
-        """Forces on the source vertices (n, 3), N, to the lattice nodes (m, 3): ``W^T f``
-        (the transpose of the displacement map, so the work done is the same)."""
+        """Forces on the source vertices (n, 3), N, to the lattice nodes (m, 3): ``W^T f``, the
+        transpose of ``W`` (node displacements in metres -> vertex displacements in metres), so
+        the work done is the same. (:meth:`vertex_displacements` returns model units, ``W u / scale``.)"""
         f = np.asarray(f, dtype=float)
         n = self.W.shape[0]
         if f.shape != (n, 3):
