@@ -11,7 +11,10 @@ from sc_fem.errors import InputError, SolverError
 from sc_fem.lattice.cubes import CubeModel
 from sc_fem.fem.linsolve import available_backends
 from sc_fem.lattice.voxelize import voxelize
-from sc_fem.modes.modal import damping_ratios, modal
+from sc_fem.fem.eigen import EigenOptions
+from sc_fem.lattice.options import VoxelOptions
+from sc_fem.modes.modal import modal
+from sc_fem.modes.options import AutoResolution, Damping
 
 
 def _free_cube():
@@ -128,14 +131,14 @@ def test_auto_method_switches_to_lobpcg_when_the_factor_does_not_fit():
     need_lobpcg = eigen.lobpcg_memory_estimate(n, nnz, 2)      # k of the first pass: 2 modes, no rigid
     assert need_lobpcg < need_factor
     budget = float(np.sqrt(need_factor * need_lobpcg))
-    tight = modal(m, n_modes=2, fix="x<min+0", max_memory=budget)
-    fits = modal(m, n_modes=2, fix="x<min+0", max_memory=2.0 * need_factor)
+    tight = modal(m, n_modes=2, fix="x<min+0", eigen=EigenOptions(max_memory=budget))
+    fits = modal(m, n_modes=2, fix="x<min+0", eigen=EigenOptions(max_memory=2.0 * need_factor))
     assert fits.eigen["method"] == "shift-invert" and tight.eigen["method"] == "lobpcg"
     assert tight.eigen["backend"] == "pyamg"
     assert f"~{need_factor / 2**20:,.0f} MiB > budget {budget / 2**20:,.0f} MiB" in tight.eigen["reason"]
     np.testing.assert_allclose(tight.frequencies, fits.frequencies, rtol=1e-6)
     with pytest.raises(SolverError, match="does not fit"):
-        modal(m, n_modes=2, fix="x<min+0", max_memory=1000.0)
+        modal(m, n_modes=2, fix="x<min+0", eigen=EigenOptions(max_memory=1000.0))
 
 
 def test_max_frequency_returns_every_mode_below_it(monkeypatch):
@@ -161,15 +164,22 @@ def test_max_frequency_returns_every_mode_below_it(monkeypatch):
 
 def test_damping_rayleigh_and_ratio():
     w = np.array([0.0, 10.0, 100.0])
-    z, spec = damping_ratios(w, rayleigh=(2.0, 1e-3))
+    z, spec = Damping(rayleigh=(2.0, 1e-3)).ratios(w)
     np.testing.assert_allclose(z, [0.0, 2.0 / 20 + 1e-3 * 10 / 2, 2.0 / 200 + 1e-3 * 100 / 2])
     assert spec == {"kind": "rayleigh", "alpha": 2.0, "beta": 1e-3}
-    z, spec = damping_ratios(w, damping_ratio=[0.1, 0.2, 0.3])
+    z, spec = Damping(ratio=[0.1, 0.2, 0.3]).ratios(w)
     np.testing.assert_allclose(z, [0.0, 0.2, 0.3])
-    b = modal(_free_cube(), n_modes=3, rayleigh=(1.0, 1e-4))
+    b = modal(_free_cube(), n_modes=3, damping=Damping(rayleigh=(1.0, 1e-4)))
     np.testing.assert_allclose(b.damping, 1.0 / (2 * b.omegas) + 1e-4 * b.omegas / 2)
     with pytest.raises(InputError, match="not both"):
-        modal(_free_cube(), damping_ratio=0.1, rayleigh=(1, 1))
+        modal(_free_cube(), damping=Damping(ratio=0.1, rayleigh=(1, 1)))
+    with pytest.raises(InputError, match="one value per mode"):
+        modal(_free_cube(), n_modes=3, damping=[0.1, 0.2])
+    for bad in (-0.1, float("nan"), [[0.1]]):
+        with pytest.raises(InputError, match="damping ratio"):
+            Damping(ratio=bad)
+    with pytest.raises(InputError, match="rayleigh"):
+        Damping(rayleigh=(1.0, -1.0))
 
 
 def test_resolution_auto_picks_the_coarsest_converged_grid(monkeypatch):
@@ -180,8 +190,8 @@ def test_resolution_auto_picks_the_coarsest_converged_grid(monkeypatch):
     embed_fn = embed.embedding
     monkeypatch.setattr(embed, "embedding", lambda model, pts: baked.append(model.n_cubes) or embed_fn(model, pts))
     grids = (10, 20, 30, 40)
-    b = modal("builtin:beam", resolution="auto", resolutions=grids, tolerance=1e-3, n_modes=2,
-              fix="x<min+1e-6", voxelize_options={"fill": "solid"})
+    b = modal("builtin:beam", resolution=AutoResolution(grids, tolerance=1e-3), n_modes=2,
+              fix="x<min+1e-6", voxel=VoxelOptions(fill="solid"))
     table = b.resolution_table
     assert [r["resolution"] for r in table] == list(grids[:len(table)])
     chosen = [i for i, r in enumerate(table) if r["chosen"]]
@@ -194,8 +204,8 @@ def test_resolution_auto_picks_the_coarsest_converged_grid(monkeypatch):
     assert i < len(table) - 1 and baked == [table[i]["cubes"]]    # only the chosen grid is baked
     assert table[i]["max_rel_change"] <= 1e-3 and all(r["max_rel_change"] > 1e-3 for r in table[:i])
     # a tolerance no grid meets: the finest grid is used and the table says so
-    strict = modal("builtin:beam", resolution="auto", resolutions=(10, 20, 30), tolerance=1e-9, n_modes=2,
-                   fix="x<min+1e-6", voxelize_options={"fill": "solid"})
+    strict = modal("builtin:beam", resolution=AutoResolution((10, 20, 30), tolerance=1e-9), n_modes=2,
+                   fix="x<min+1e-6", voxel={"fill": "solid"})
     assert strict.resolution == 30 and not strict.eigen["auto_converged"]
     # the chosen frequencies agree with the Euler-Bernoulli cantilever (1 x 0.1 x 0.1 m steel) within 1 %
     f_eb = 1.875104069**2 / (2 * np.pi) * np.sqrt(200e9 * 0.1**4 / 12 / (7850 * 0.01 * 1.0))
@@ -251,10 +261,10 @@ def test_auto_method_picks_the_solver_predicted_faster_here():
 
 
 def test_old_names_warn_and_contradictions_are_errors():
-    """``modal(method=)`` and ``ModalBasis.fixed`` (renamed eigensolver= / fix_record) still work
+    """``modal(method=)`` and ``ModalBasis.fixed`` (renamed eigen= / fix_record) still work
     with a DeprecationWarning; an old and a new name that disagree are an error, not a silent pick."""
     m = CubeModel.box((6, 2, 2), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
-    with pytest.warns(DeprecationWarning, match="eigensolver"):
+    with pytest.warns(DeprecationWarning, match="EigenOptions"):
         old = modal(m, n_modes=2, fix="x<min+0", method="lobpcg")
     assert old.eigen["method"] == "lobpcg"
     with pytest.warns(DeprecationWarning, match="fix_record"):
@@ -263,3 +273,41 @@ def test_old_names_warn_and_contradictions_are_errors():
         modal(m, n_modes=2, fix="x<min+0", method="lobpcg", eigensolver="shift-invert")
     with pytest.raises(InputError, match="contradicts"), pytest.warns(DeprecationWarning):
         voxelize("builtin:beam", resolution=8, method="sample", occupancy="exact")
+
+
+def test_grouped_options_match_the_old_flat_keywords():
+    """Each keyword folded into an option object (eigen=, damping=, resolution=AutoResolution,
+    voxel=) gives exactly the old keyword's result, and the old one warns."""
+    m = CubeModel.box((6, 2, 2), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
+    pairs = [(dict(eigen=EigenOptions(solver="lobpcg")), dict(eigensolver="lobpcg")),
+             (dict(eigen=EigenOptions(backend="splu", max_memory=1e9)), dict(backend="splu", max_memory=1e9)),
+             (dict(damping=Damping(rayleigh=(0.5, 1e-4))), dict(rayleigh=(0.5, 1e-4))),
+             (dict(damping=0.03), dict(damping_ratio=0.03))]
+    for new, old in pairs:
+        a = modal(m, n_modes=3, fix="x<min+0", **new)
+        with pytest.warns(DeprecationWarning, match="deprecated"):
+            b = modal(m, n_modes=3, fix="x<min+0", **old)
+        np.testing.assert_allclose(a.frequencies, b.frequencies, rtol=1e-9)
+        np.testing.assert_array_equal(a.damping, b.damping)
+        assert a.eigen["method"] == b.eigen["method"] and a.eigen["backend"] == b.eigen["backend"]
+    assert modal(m, n_modes=2, fix="x<min+0", eigen="lobpcg").eigen["method"] == "lobpcg"
+    # the 6 -> 8 change is 0.4 %: the default tolerance (5 %) would pick 6, this one cannot converge
+    new = modal("builtin:beam", resolution=AutoResolution((6, 8), tolerance=1e-9), n_modes=2,
+                fix="x<min+1e-6", voxel=VoxelOptions(fill="solid", youngs=2e9))
+    with pytest.warns(DeprecationWarning):
+        old = modal("builtin:beam", resolution="auto", resolutions=(6, 8), tolerance=1e-9, n_modes=2,
+                    fix="x<min+1e-6", voxelize_options={"fill": "solid", "youngs": 2e9})
+    assert new.resolution == old.resolution == 8 and not new.resolution_table[0]["converged"]
+    assert [r["frequencies"] for r in new.resolution_table] == [r["frequencies"] for r in old.resolution_table]
+    np.testing.assert_allclose(new.material["youngs"], [2e9, 2e9], rtol=1e-12)
+    np.testing.assert_allclose(new.frequencies, old.frequencies, rtol=1e-12)
+    with pytest.raises(InputError, match="not both"), pytest.warns(DeprecationWarning):
+        modal(m, n_modes=2, damping=0.1, damping_ratio=0.2)
+    with pytest.raises(TypeError, match="n_mode"):
+        modal(m, n_mode=2)
+    with pytest.raises(InputError, match="contradicts"):
+        modal("builtin:beam", resolution=8, voxel=VoxelOptions(resolution=12))
+    with pytest.raises(InputError, match="eigensolver must be one of"):
+        modal(m, eigen="magic")
+    with pytest.raises(InputError, match="unknown voxelize option"):
+        modal("builtin:beam", voxel={"youngs": 1e9, "colour": "red"})

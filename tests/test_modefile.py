@@ -11,13 +11,14 @@ import pytest
 from sc_fem.errors import FileFormatError
 from sc_fem.lattice.cubes import CubeModel
 from sc_fem.modes.modal import modal
+from sc_fem.modes.options import Damping
 from sc_fem.io.modes import MODES_FORMAT_VERSION, load_modes, save_modes
 
 
 @pytest.fixture(scope="module")
 def basis():
     m = CubeModel.box((4, 2, 2), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
-    return modal(m, n_modes=4, fix="x<min+0", keep_lattice=True, rayleigh=(0.5, 1e-4))
+    return modal(m, n_modes=4, fix="x<min+0", keep_lattice=True, damping=Damping(rayleigh=(0.5, 1e-4)))
 
 
 @pytest.fixture

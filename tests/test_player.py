@@ -15,7 +15,7 @@ from sc_fem.modes.player import ModalPlayer, transition
 @pytest.fixture(scope="module")
 def basis():
     m = CubeModel.box((6, 2, 2), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
-    return modal(m, n_modes=4, fix="x<min+0", damping_ratio=[0.02, 0.05, 1.0, 2.0])
+    return modal(m, n_modes=4, fix="x<min+0", damping=[0.02, 0.05, 1.0, 2.0])
 
 
 @pytest.mark.parametrize("zeta", [0.0, 0.05, 0.7, 1.0, 2.5])
@@ -70,7 +70,7 @@ def test_impulse_excites_modes_through_the_baked_values(basis):
 
 def test_step_equals_frames_and_undamped_energy_is_conserved(basis):
     zero = modal(CubeModel.box((4, 2, 2), 0.05, youngs=1e7, poisson=0.3, density=1000.0), n_modes=3,
-                 fix="x<min+0", damping_ratio=0.0)
+                 fix="x<min+0", damping=0.0)
     p = ModalPlayer(zero)
     p.impulse(10, [0.1, 0.2, 0.3])
     e0 = 0.5 * np.sum(p.v**2 + p.omega**2 * p.q**2)

@@ -24,7 +24,7 @@ _LAZY: dict[str, str] = {
     "FileFormatError": ".errors", "ModeFileError": ".errors", "RenderError": ".errors",
     # geometry -> lattice
     "load_mesh": ".geometry.mesh", "CubeModel": ".lattice.cubes", "Embedding": ".lattice.embed",
-    "Scene": ".scene",
+    "VoxelOptions": ".lattice.options", "Scene": ".scene",
     # FEM core
     "Material": ".fem.material", "lame": ".fem.material", "Assembler": ".fem.assemble",
     "FixSpec": ".fem.boundary", "parse_fix": ".fem.boundary", "fixed_nodes": ".fem.boundary",
@@ -33,12 +33,14 @@ _LAZY: dict[str, str] = {
     "solve_static": ".fem.static", "StaticResult": ".fem.static",
     "ELEMENTS": ".fem.elements", "DEFAULT_ELEMENT": ".fem.elements",
     "solve_eigen": ".fem.eigen", "EigenResult": ".fem.eigen", "EigenSolver": ".fem.eigen",
+    "EigenOptions": ".fem.eigen",
     # files
     "save_model": ".io.model", "load_model": ".io.model",
     "Animation": ".io.animation", "save_animation": ".io.animation", "load_animation": ".io.animation",
     "save_modes": ".io.modes", "load_modes": ".io.modes",
     # modal analysis
     "ModalBasis": ".modes.modal", "ModalPlayer": ".modes.player", "run_batch": ".modes.batch",
+    "Damping": ".modes.options", "AutoResolution": ".modes.options",
     "BatchResult": ".modes.batch",
     # dynamics (loads and contact classes live in sc_fem.dynamics)
     "simulate": ".dynamics.driver", "make_integrator": ".dynamics.driver",

@@ -44,39 +44,43 @@ class Scene:
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def from_mesh(cls, source: Any, *, resolution: int | None = None, fix=None, fix_vertices=None,
-                  **voxelize_options: Any) -> "Scene":
+    def from_mesh(cls, source: Any, options: Any = None, /, *, fix=None, fix_vertices=None,
+                  **fields: Any) -> "Scene":
         """Load (any :func:`sc_fem.load_mesh` input), voxelize and fix.
 
         Parameters
         ----------
         source : path, ``"builtin:NAME"``, trimesh.Trimesh or (vertices, faces)
-        resolution : int, optional
-            Cubes along the longest axis (default of :func:`sc_fem.voxelize`).
+        options : VoxelOptions or dict, optional
+            How to voxelize (:class:`~sc_fem.lattice.options.VoxelOptions`).
         fix : str, FixSpec, callable or list, optional
             Fixed nodes (:func:`sc_fem.fixed_nodes`); ``"default"`` = a built-in's supports.
         fix_vertices : array_like of int, optional
             Source vertices whose cubes are fixed.
-        **voxelize_options
-            :func:`sc_fem.voxelize` options (``pitch``, ``scale``, ``fill``, ``youngs``, ...).
+        **fields
+            Fields of :class:`~sc_fem.lattice.options.VoxelOptions` overriding ``options``
+            (``resolution``, ``scale``, ``fill``, ``youngs``, ...).
         """
         from .geometry.mesh import load_mesh
         from .lattice.voxelize import voxelize
 
         mesh = load_mesh(source)
-        model = voxelize(mesh, resolution=resolution, **voxelize_options)
+        model = voxelize(mesh, options, **fields)
         return cls.from_model(model, mesh, fix=fix, fix_vertices=fix_vertices)
 
     @classmethod
     def from_model(cls, model: CubeModel, mesh: Any = None, *, fix=None, fix_vertices=None) -> "Scene":
-        """A scene around an existing lattice (``mesh`` optional: needed by ``fix_vertices``)."""
+        """A scene around an existing lattice.
+
+        ``mesh`` (optional; needed by ``fix_vertices``) is anything :func:`sc_fem.load_mesh`
+        accepts, or an ``(n, 3)`` array of points of interest (any number, even one).
+        """
         from .fem.boundary import fixed_nodes
-        from .geometry.mesh import load_mesh
         from .geometry.models import expand_fix
 
         if not isinstance(model, CubeModel):
             raise InputError(f"model must be a CubeModel, got {type(model).__name__}")
-        mesh = None if mesh is None else load_mesh(mesh)
+        mesh = None if mesh is None else _source(mesh)
         if fix_vertices is not None and mesh is None:
             raise InputError("fix_vertices needs the source mesh (mesh=) to locate the vertices")
         source = str(model.info.get("source", "")) if mesh is None else str(mesh.metadata.get("source", ""))
@@ -181,3 +185,18 @@ class Scene:
     def __repr__(self) -> str:
         return (f"Scene({self.source or 'lattice'}: {self.model.n_cubes} cubes, "
                 f"{self.rest_vertices.shape[0]} vertices, {len(self.fixed_nodes)} fixed nodes)")
+
+
+def _source(mesh: Any):
+    """A source mesh from anything :func:`sc_fem.load_mesh` reads; a bare ``(n, 3)`` array of
+    points becomes a face-less mesh without the point-cloud checks (one point is fine here)."""
+    if isinstance(mesh, (np.ndarray, list)) and np.ndim(mesh) == 2:
+        import trimesh
+
+        from ._validate import as_points
+
+        return trimesh.Trimesh(vertices=as_points(mesh, "points"), faces=np.zeros((0, 3), dtype=np.int64),
+                               process=False)
+    from .geometry.mesh import load_mesh
+
+    return load_mesh(mesh)

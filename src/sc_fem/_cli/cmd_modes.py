@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from .common import (add_element_arg, add_fix_args, add_grid_args, add_material_args, add_mesh_arg, add_up_arg, stage,
-                     voxelize_options)
+                     voxel_options)
 
 
 def register(sub) -> None:
@@ -86,22 +86,25 @@ def register(sub) -> None:
 
 # ---------------------------------------------------------------------------------------- precompute
 def _modal_options(args) -> dict:
-    """Keyword arguments of :func:`sc_fem.modes.modal.modal` from the command line."""
+    """Keyword arguments of :func:`sc_fem.modal` from the command line (option objects built once here)."""
+    from ..errors import InputError
     from ..fem.boundary import read_vertex_file
+    from ..fem.eigen import EigenOptions
+    from ..modes.options import AutoResolution, Damping, parse_resolution
 
-    vopts = {k: v for k, v in voxelize_options(args).items() if not (k == "pitch" and v is None)}
-    opts = dict(resolution=args.resolution, n_modes=args.modes, max_frequency=args.max_frequency, element=args.element,
-                lumped=args.lumped, keep_rigid=args.keep_rigid, keep_lattice=args.keep_lattice,
-                eigensolver=args.eigensolver, backend=args.backend, voxelize_options=vopts,
-                fix=list(args.fix) or None,
-                fix_vertices=read_vertex_file(args.fix_vertices) if args.fix_vertices else None)
+    resolution = parse_resolution(args.resolution)
     if args.tolerance is not None:
-        opts["tolerance"] = args.tolerance
-    if args.damping is not None:
-        opts["damping_ratio"] = args.damping
-    if args.rayleigh is not None:
-        opts["rayleigh"] = tuple(args.rayleigh)
-    return opts
+        if not isinstance(resolution, AutoResolution):
+            raise InputError("--tolerance applies to --resolution auto only")
+        resolution = AutoResolution(tolerance=args.tolerance)
+    damping = None
+    if args.damping is not None or args.rayleigh is not None:
+        damping = Damping(ratio=args.damping, rayleigh=None if args.rayleigh is None else tuple(args.rayleigh))
+    return dict(resolution=resolution, voxel=voxel_options(args), n_modes=args.modes,
+                max_frequency=args.max_frequency, element=args.element, lumped=args.lumped,
+                keep_rigid=args.keep_rigid, keep_lattice=args.keep_lattice, damping=damping,
+                eigen=EigenOptions(solver=args.eigensolver, backend=args.backend), fix=list(args.fix) or None,
+                fix_vertices=read_vertex_file(args.fix_vertices) if args.fix_vertices else None)
 
 
 def precompute_summary(basis, timings: dict) -> str:

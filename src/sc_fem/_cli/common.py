@@ -55,20 +55,23 @@ def add_material_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mass", type=float, default=None, help="total mass in kg (overrides density)")
 
 
-def voxelize_options(args) -> dict:
-    """Keyword arguments of :func:`sc_fem.voxelize` from the grid/material options, except ``resolution``."""
-    return dict(pitch=args.pitch, scale=args.scale, fill=args.fill, occupancy=args.occupancy, keep=args.keep,
-                shell_thickness=args.shell_thickness, stiffness=args.stiffness,
-                youngs=args.youngs, poisson=args.poisson, density=args.density, mass=args.mass)
+def voxel_options(args):
+    """The :class:`sc_fem.VoxelOptions` of the grid/material options of ``args`` (``--resolution``
+    only when it is a number: ``auto`` is the modal command's business)."""
+    from ..lattice.options import VoxelOptions
+
+    res = getattr(args, "resolution", None)
+    res = None if res is None or (isinstance(res, str) and not res.strip().isdigit()) else int(res)
+    return VoxelOptions(resolution=res, pitch=args.pitch, scale=args.scale, fill=args.fill, occupancy=args.occupancy,
+                        keep=args.keep, shell_thickness=args.shell_thickness, stiffness=args.stiffness,
+                        youngs=args.youngs, poisson=args.poisson, density=args.density, mass=args.mass)
 
 
 def voxelize_from_args(args, mesh=None):
     """Run :func:`sc_fem.voxelize` with the grid/material options of ``args``."""
     from ..lattice.voxelize import voxelize
 
-    res = args.resolution
-    return voxelize(mesh if mesh is not None else args.mesh, resolution=None if res is None else int(res),
-                    **voxelize_options(args))
+    return voxelize(mesh if mesh is not None else args.mesh, voxel_options(args))
 
 
 def scene_from_args(args, mesh=None):
@@ -76,11 +79,9 @@ def scene_from_args(args, mesh=None):
     from ..fem.boundary import read_vertex_file
     from ..scene import Scene
 
-    res = args.resolution
     fix_vertices = read_vertex_file(args.fix_vertices) if getattr(args, "fix_vertices", None) else None
-    return Scene.from_mesh(mesh if mesh is not None else args.mesh, resolution=None if res is None else int(res),
-                           fix=list(getattr(args, "fix", []) or []) or None, fix_vertices=fix_vertices,
-                           **voxelize_options(args))
+    return Scene.from_mesh(mesh if mesh is not None else args.mesh, voxel_options(args),
+                           fix=list(getattr(args, "fix", []) or []) or None, fix_vertices=fix_vertices)
 
 
 def model_summary(model) -> str:

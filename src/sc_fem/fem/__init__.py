@@ -12,7 +12,7 @@ _NAMES = {
     "factorize": ".linsolve", "Factorization": ".linsolve",
     "solve_static": ".static", "StaticResult": ".static",
     "ELEMENTS": ".elements", "DEFAULT_ELEMENT": ".elements",
-    "solve_eigen": ".eigen", "EigenResult": ".eigen", "EigenSolver": ".eigen",
+    "solve_eigen": ".eigen", "EigenResult": ".eigen", "EigenSolver": ".eigen", "EigenOptions": ".eigen",
     "solve_reference": ".reference", "ReferenceSolution": ".reference",
 }
 __all__ = sorted([*_NAMES, "assemble"])

@@ -57,6 +57,50 @@ automatic choice never starts a factorization that would not fit (it may pick LO
 for shells)."""
 
 
+@dataclass(frozen=True)
+class EigenOptions:
+    """Which eigensolver, and within what memory: the options :func:`sc_fem.modal` passes on to
+    :class:`EigenSolver`.
+
+    Parameters
+    ----------
+    solver : {"auto", "shift-invert", "lobpcg"}
+        ``"auto"`` takes the one predicted faster on this machine whose memory fits
+        ``max_memory`` (the reason is recorded in the result).
+    backend : {"auto", "cholmod", "cholespy", "splu"}
+        Factorization backend of shift-invert (:func:`sc_fem.fem.linsolve.factorize`).
+    max_memory : float, optional
+        Memory budget in bytes for the automatic choice; default half the available memory.
+    """
+
+    solver: str = "auto"
+    backend: str = "auto"
+    max_memory: float | None = None
+
+    def __post_init__(self) -> None:
+        from .linsolve import BACKENDS
+
+        if self.solver not in METHODS:
+            raise InputError(f"eigensolver must be one of {list(METHODS)}, got {self.solver!r}")
+        if self.backend not in ("auto", *BACKENDS):
+            raise InputError(f"backend must be one of {['auto', *BACKENDS]}, got {self.backend!r}")
+        if self.max_memory is not None:
+            from .._validate import positive_scalar
+
+            object.__setattr__(self, "max_memory", positive_scalar(self.max_memory, "max_memory"))
+
+    @classmethod
+    def coerce(cls, value: "EigenOptions | str | None") -> "EigenOptions":
+        """``None`` (defaults), an EigenOptions, or a solver name (``"lobpcg"``)."""
+        if value is None:
+            return cls()
+        if isinstance(value, cls):
+            return value
+        if isinstance(value, str):
+            return cls(solver=value)
+        raise InputError(f"eigen must be an EigenOptions or a solver name, got {type(value).__name__}")
+
+
 @dataclass(frozen=True, eq=False)
 class EigenResult:
     """Smallest eigenpairs of ``K phi = lambda M phi``.

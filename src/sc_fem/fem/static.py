@@ -21,9 +21,9 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from .._validate import as_float_array, as_points
+from .._validate import as_float_array
 from .assemble import Assembler
-from .boundary import fixed_dofs, fixed_nodes
+from .boundary import fixed_dofs
 from .eigen import rigid_block
 from .elements import DEFAULT_ELEMENT, check_element
 from ..errors import BoundaryConditionError, InputError, SolverError
@@ -147,24 +147,24 @@ def solve_static(model, *, element: str = DEFAULT_ELEMENT, fix=None, fix_vertice
     """
     from ..scene import Scene
 
-    scene = None
     if isinstance(model, Scene):
         given = [k for k, v in (("fix", fix), ("fix_vertices", fix_vertices), ("points", points), ("mesh", mesh))
                  if v is not None]
         if given:
             raise InputError(f"a Scene already has its fixed nodes and mesh: do not pass {', '.join(given)}")
-        scene, model = model, model.model
-    if not isinstance(model, CubeModel):
-        raise InputError(f"model must be a CubeModel or a Scene, got {type(model).__name__}")
+        scene, report_points = model, True
+    else:
+        if not isinstance(model, CubeModel):
+            raise InputError(f"model must be a CubeModel or a Scene, got {type(model).__name__}")
+        source = points if points is not None else mesh
+        if fix_vertices is not None and source is None:
+            raise BoundaryConditionError("fix_vertices needs mesh= or points= (the vertex positions)")
+        scene = Scene.from_model(model, source, fix=fix, fix_vertices=fix_vertices)
+        report_points = source is not None
+    model = scene.model
     element = check_element(element)
     m = model.n_nodes
-    if points is None and mesh is not None:
-        from ..geometry.mesh import load_mesh
-
-        points = np.asarray(load_mesh(mesh).vertices, dtype=float)
-    pts = None if points is None else as_points(points, "points")
-    if scene is not None:
-        pts = scene.rest_vertices
+    W = scene.W if report_points else None
 
     f = np.zeros((m, 3))
     if forces is not None:
@@ -172,24 +172,11 @@ def solve_static(model, *, element: str = DEFAULT_ELEMENT, fix=None, fix_vertice
     if gravity is not None:
         g = as_float_array(gravity, "gravity", (3,))
         f += model.node_masses()[:, None] * g[None, :]
-    W = emb = None
-    if scene is not None:
-        emb = scene.embedding
-        W = emb.W
-    elif pts is not None:
-        from ..lattice.embed import embedding
-
-        emb = embedding(model, pts)
-        W = emb.W
     if point_forces is not None:
-        if pts is None:
+        if W is None:
             raise InputError("point_forces needs points= (or mesh=) to say where the forces act")
-        pf = as_float_array(point_forces, "point_forces", (len(pts), 3))
-        f += W.T @ pf
-
-    if fix_vertices is not None and pts is None:
-        raise BoundaryConditionError("fix_vertices needs mesh= or points= (the vertex positions)")
-    fixed = scene.fixed_nodes if scene is not None else fixed_nodes(model, fix, vertices=fix_vertices, mesh_embedding=emb)
+        f += scene.forces_to_nodes(as_float_array(point_forces, "point_forces", (W.shape[0], 3)))
+    fixed = scene.fixed_nodes
 
     # parts that are not held: error if loaded, pin if unloaded
     labels = node_parts(model)

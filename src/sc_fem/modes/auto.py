@@ -11,34 +11,31 @@ import time
 
 import numpy as np
 
-from .._validate import positive_scalar
 from ..errors import InputError
-from .modal import AUTO_RESOLUTIONS, ModalBasis, _log, finish, solve_scene
+from ..lattice.options import VoxelOptions
+from .modal import ModalBasis, _log, finish, solve_scene
+from .options import AutoResolution, ModalRequest
 
 
-def modal_auto(mesh, *, tolerance, resolutions, vopts, timings, fix, fix_vertices, kw: dict) -> ModalBasis:
-    """``resolution="auto"``: solve grid after grid, keeping only the last two; bake the chosen one.
-
-    ``kw`` are the eigen and damping options of :func:`sc_fem.modal`."""
+def modal_auto(mesh, auto: AutoResolution, voxel: VoxelOptions, req: ModalRequest, *, fix, fix_vertices,
+               timings: dict) -> ModalBasis:
+    """``resolution="auto"``: solve grid after grid of ``auto.resolutions``, keeping only the last
+    two; bake the chosen one. ``voxel`` and ``req`` are :func:`sc_fem.modal`'s other options."""
     from ..scene import Scene
 
-    tol = positive_scalar(tolerance, "tolerance")
-    if "pitch" in vopts and vopts["pitch"] is not None:
-        raise InputError("resolution='auto' chooses the grid; do not pass pitch=")
-    vopts = {k: v for k, v in vopts.items() if k != "pitch"}
-    grids = sorted({int(r) for r in (AUTO_RESOLUTIONS if resolutions is None else resolutions)})
-    if len(grids) < 2 or grids[0] < 1:
-        raise InputError(f"resolution='auto' needs at least two positive resolutions, got {grids}")
+    if voxel.pitch is not None or voxel.resolution is not None:
+        raise InputError("resolution='auto' chooses the grid; do not give a pitch or resolution in the voxel options")
+    tol = auto.tolerance
     table: list[dict] = []
     prev = cur = None                                             # solutions of the last two grids
-    for r in grids:                                               # loop over grids (a handful)
+    for r in auto.resolutions:                                    # loop over grids (a handful)
         t0 = time.perf_counter()
-        scene = Scene.from_mesh(mesh, resolution=r, fix=fix, fix_vertices=fix_vertices, **vopts)
+        scene = Scene.from_mesh(mesh, voxel, resolution=r, fix=fix, fix_vertices=fix_vertices)
         lattice = scene.model
         t_vox = time.perf_counter() - t0
-        _log(f"[auto] resolution {r}: {lattice.n_cubes} cubes, {lattice.n_dofs} DOFs", kw["progress"])
+        _log(f"[auto] resolution {r}: {lattice.n_cubes} cubes, {lattice.n_dofs} DOFs", req.progress)
         prev, cur = cur, None                                     # drop the grid before prev first
-        cur = solve_scene(scene, **kw)
+        cur = solve_scene(scene, req)
         cur.timings["voxelize"] = t_vox
         el = cur.elastic_frequencies
         table.append({"resolution": r, "cubes": lattice.n_cubes, "dofs": lattice.n_dofs,
@@ -47,8 +44,8 @@ def modal_auto(mesh, *, tolerance, resolutions, vopts, timings, fix, fix_vertice
         if prev is not None:
             fp = prev.elastic_frequencies
             kk = min(len(fp), len(el))
-            if kw["n_modes"] is not None:
-                kk = min(kk, kw["n_modes"])
+            if req.n_modes is not None:
+                kk = min(kk, req.n_modes)
             change = float(np.max(np.abs(fp[:kk] - el[:kk]) / np.maximum(el[:kk], 1e-300))) if kk else np.inf
             table[-2]["max_rel_change"] = change
             if change <= tol:
@@ -59,7 +56,7 @@ def modal_auto(mesh, *, tolerance, resolutions, vopts, timings, fix, fix_vertice
     for row in table:
         row["converged"] = converged
     chosen.info.update(auto_tolerance=tol, auto_converged=converged)
-    return finish(chosen, kw, timings, resolution_table=table)
+    return finish(chosen, req, timings, resolution_table=table)
 
 
 def format_resolution_table(table: list[dict], n_show: int = 4) -> str:

@@ -18,15 +18,15 @@ Units: a mode value is a displacement in metres per unit modal coordinate (m kg^
 modal coordinate ``q`` (m kg^1/2) gives the displacement ``sum_k q_k phi_k`` in metres; an
 impulse ``J`` (N s) on a vertex ``v`` gives the modal velocity ``phi_k(v) . J``.
 
-Damping (stored per mode as a ratio ``zeta_k``): ``damping_ratio=zeta`` (one value or one per
-mode, default :data:`DEFAULT_DAMPING_RATIO`) or ``rayleigh=(alpha, beta)``
-(``C = alpha M + beta K``, i.e. ``zeta_k = alpha / (2 omega_k) + beta omega_k / 2``).
+Damping (stored per mode as a ratio ``zeta_k``): ``damping=`` a ratio (one value or one per mode,
+default :data:`~sc_fem.modes.options.DEFAULT_DAMPING_RATIO`) or a :class:`~sc_fem.modes.options.Damping`
+(``Damping(rayleigh=(alpha, beta))`` for ``C = alpha M + beta K``).
 
 *A model no bigger than the scene needs*: ``n_modes=K``, ``max_frequency=F`` (all modes below
 ``F`` Hz, e.g. half the playback frame rate -- faster modes only alias), and
-``resolution="auto"``: the coarsest grid of ``resolutions`` whose first ``K`` frequencies agree
-with those of the next finer grid within ``tolerance`` (relative); the table it decided from is
-in :attr:`ModalBasis.resolution_table`.
+``resolution="auto"`` (or an :class:`~sc_fem.modes.options.AutoResolution`): the coarsest grid
+whose first ``K`` frequencies agree with those of the next finer grid; the table it decided from
+is in :attr:`ModalBasis.resolution_table`.
 """
 
 from __future__ import annotations
@@ -38,16 +38,16 @@ from typing import Any
 
 import numpy as np
 
-from .._validate import positive_int, positive_scalar
-from ..fem.elements import DEFAULT_ELEMENT, check_element
 from ..errors import InputError
+from ..fem.eigen import EigenOptions
+from ..fem.elements import DEFAULT_ELEMENT
 from ..lattice.cubes import CubeModel
+from ..lattice.options import VoxelOptions
+from .options import (AUTO_RESOLUTIONS, DEFAULT_DAMPING_RATIO, DEFAULT_RESOLUTION_TOLERANCE,  # noqa: F401
+                      AutoResolution, Damping, ModalRequest, parse_resolution)
 
 DEFAULT_N_MODES = 10
 """Modes computed when neither ``n_modes`` nor ``max_frequency`` is given."""
-
-DEFAULT_DAMPING_RATIO = 0.01
-"""Damping ratio of every mode when no damping is given (1 % of critical)."""
 
 RIGID_FRACTION = 1e-10
 """A mode is rigid when ``omega^2 < RIGID_FRACTION * lambda_scale`` (``lambda_scale`` =
@@ -55,12 +55,6 @@ RIGID_FRACTION = 1e-10
 about ``1e-17 .. 1e-16 * lambda_scale`` (round-off); the first elastic (bending) mode of a free
 200 x 1 x 1-cube rod (q1i), a very floppy voxel model, is at ``4.6e-9 * lambda_scale`` -- 46x above
 the threshold (measured with ``solve_eigen`` on ``CubeModel.box((200, 1, 1), ...)``)."""
-
-AUTO_RESOLUTIONS: tuple[int, ...] = (12, 16, 24, 32, 48, 64)
-"""Grids tried by ``resolution="auto"`` (cubes along the longest axis), coarsest first."""
-
-DEFAULT_RESOLUTION_TOLERANCE = 0.05
-"""Relative frequency agreement that ``resolution="auto"`` asks for by default."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -192,44 +186,8 @@ class ModalBasis:
 
 # ---------------------------------------------------------------------------------------- helpers
 def damping_ratios(omegas: np.ndarray, *, damping_ratio=None, rayleigh=None) -> tuple[np.ndarray, dict]:
-    """Per-mode damping ratios, shape (k,), and the spec dict stored with them.
-
-    Parameters
-    ----------
-    omegas : ndarray, shape (k,)
-        Angular frequencies, rad/s (0 = rigid mode, which gets ``zeta = 0``).
-    damping_ratio : float or array_like (k,), optional
-        ``zeta`` per mode (>= 0).
-    rayleigh : (alpha, beta), optional
-        ``C = alpha M + beta K``: alpha in 1/s, beta in s.
-    """
-    omegas = np.asarray(omegas, dtype=float)
-    k = len(omegas)
-    if damping_ratio is not None and rayleigh is not None:
-        raise InputError("give damping_ratio or rayleigh, not both")
-    elastic = omegas > 0
-    if rayleigh is not None:
-        try:
-            alpha, beta = (float(x) for x in rayleigh)
-        except (TypeError, ValueError):
-            raise InputError(f"rayleigh must be a pair (alpha, beta), got {rayleigh!r}") from None
-        if not (np.isfinite(alpha) and np.isfinite(beta)) or alpha < 0 or beta < 0:
-            raise InputError(f"rayleigh coefficients must be finite and >= 0, got alpha={alpha}, beta={beta}")
-        zeta = np.zeros(k)
-        w = omegas[elastic]
-        zeta[elastic] = alpha / (2.0 * w) + beta * w / 2.0
-        return zeta, {"kind": "rayleigh", "alpha": alpha, "beta": beta}
-    z = DEFAULT_DAMPING_RATIO if damping_ratio is None else damping_ratio
-    arr = np.asarray(z, dtype=float)
-    if arr.ndim == 0:
-        arr = np.full(k, float(arr))
-    if arr.shape != (k,):
-        raise InputError(f"damping_ratio must be a scalar or have shape ({k},), got {arr.shape}")
-    if not np.all(np.isfinite(arr)) or np.any(arr < 0):
-        raise InputError("damping_ratio must be finite and >= 0")
-    arr = np.where(elastic, arr, 0.0)
-    spec = {"kind": "ratio", "zeta": float(z) if np.ndim(z) == 0 else arr.tolist()}
-    return arr, spec
+    """Per-mode damping ratios (k,) and their record: ``Damping(damping_ratio, rayleigh).ratios(omegas)``."""
+    return Damping(ratio=damping_ratio, rayleigh=rayleigh).ratios(omegas)
 
 
 def _unsupported_parts(model: CubeModel, fixed: np.ndarray) -> int:
@@ -266,19 +224,18 @@ class _Solved:
         return np.sqrt(np.maximum(self.lam[~self.rigid], 0.0)) / (2.0 * np.pi)
 
 
-def solve_scene(scene, *, n_modes, max_frequency, element, lumped, keep_rigid,
-                eigensolver, backend, max_modes, max_memory, progress, **_) -> _Solved:
+def solve_scene(scene, req: ModalRequest) -> _Solved:
     """Eigenpairs of one lattice; the shifted operator is set up once however often ``k`` grows."""
     from ..fem.assemble import Assembler
-    from ..fem.boundary import fixed_dofs
     from ..fem.eigen import EigenSolver, rigid_body_modes
 
     model, fixed = scene.model, scene.fixed_nodes
+    n_modes, max_frequency, max_modes, progress = req.n_modes, req.max_frequency, req.max_modes, req.progress
     t = {}
     t0 = time.perf_counter()
-    asm = Assembler(model, element, fixed_dofs=fixed_dofs(fixed))
+    asm = Assembler(model, req.element, fixed_dofs=scene.fixed_dofs)
     K = asm.stiffness()
-    M = asm.mass(lumped=lumped)
+    M = asm.mass(lumped=req.lumped)
     t["assemble"] = time.perf_counter() - t0
     n = K.shape[0]
     if n == 0:
@@ -289,8 +246,8 @@ def solve_scene(scene, *, n_modes, max_frequency, element, lumped, keep_rigid,
     k_cap = min(n - 1, max_modes + n_rigid_expected + 6)
     k = n_rigid_expected + (want if want is not None else 12)
     t0 = time.perf_counter()
-    solver = EigenSolver(K, M, method=eigensolver, backend=backend,
-                         near_null=rigid_body_modes(model.nodes_m, asm.free_dofs), max_memory=max_memory)
+    solver = EigenSolver(K, M, method=req.eigen.solver, backend=req.eigen.backend,
+                         near_null=rigid_body_modes(model.nodes_m, asm.free_dofs), max_memory=req.eigen.max_memory)
     scale = solver.lambda_scale
     passes = 0
     while True:                                                   # loop: grow k until enough modes
@@ -315,7 +272,7 @@ def solve_scene(scene, *, n_modes, max_frequency, element, lumped, keep_rigid,
     within = rigid | (np.cumsum(~rigid) <= (max_modes if want is None else min(want, max_modes)))
     cut = bool(np.any(sel & ~within))                             # modes asked for beyond max_modes
     sel &= within
-    if not keep_rigid:
+    if not req.keep_rigid:
         sel &= ~rigid
     if lam_max is not None and not np.any(sel & ~rigid):
         first = np.sqrt(max(float(lam[~rigid][0]), 0.0)) / (2 * np.pi) if np.any(~rigid) else float("nan")
@@ -329,7 +286,7 @@ def solve_scene(scene, *, n_modes, max_frequency, element, lumped, keep_rigid,
         target = f"{max_frequency:g} Hz" if lam_max is not None else f"{want} elastic modes"
         info["truncated"] = f"max_modes={max_modes} (or the model size) reached before {target}"
     return _Solved(scene=scene, lam=lam[sel], X=eig.vectors[:, sel], rigid=rigid[sel],
-                   res=eig.residuals[sel], n_removed=0 if keep_rigid else int(rigid.sum()), asm=asm, info=info,
+                   res=eig.residuals[sel], n_removed=0 if req.keep_rigid else int(rigid.sum()), asm=asm, info=info,
                    timings=t)
 
 
@@ -342,7 +299,7 @@ def _bake(asm, X: np.ndarray, W) -> tuple[np.ndarray, np.ndarray]:
     return np.ascontiguousarray(node.transpose(2, 0, 1)), np.ascontiguousarray(vert.transpose(2, 0, 1))
 
 
-def finish(s: _Solved, kw: dict, timings: dict, resolution_table: list | None = None) -> ModalBasis:
+def finish(s: _Solved, req: ModalRequest, timings: dict, resolution_table: list | None = None) -> ModalBasis:
     """Bake the modes of ``s`` onto its scene's source mesh (or the lattice nodes): the ModalBasis."""
     scene = s.scene
     model = scene.model
@@ -351,82 +308,124 @@ def finish(s: _Solved, kw: dict, timings: dict, resolution_table: list | None = 
     node_modes, vertex_modes = _bake(s.asm, s.X, scene.W)
     timings["bake"] = time.perf_counter() - t0
     omegas = np.where(s.rigid, 0.0, np.sqrt(np.maximum(s.lam, 0.0)))
-    zeta, spec = damping_ratios(omegas, damping_ratio=kw["damping_ratio"], rayleigh=kw["rayleigh"])
-    keep = kw["keep_lattice"]
+    zeta, spec = req.damping.ratios(omegas)
+    keep = req.keep_lattice
     return ModalBasis(
         frequencies=omegas / (2.0 * np.pi), modes=vertex_modes, vertices=scene.rest_vertices, faces=scene.faces,
         damping=zeta, damping_spec=spec, rigid=s.rigid, residuals=s.res, n_rigid_removed=s.n_removed,
         scale=float(model.scale), pitch=float(model.pitch),
-        resolution=int(model.info.get("resolution", int(model.dims.max()))), element=kw["element"],
+        resolution=int(model.info.get("resolution", int(model.dims.max()))), element=req.element,
         material=scene.material_record(), fix_record=scene.fix_record(),
         source=scene.source, source_sha256=scene.sha256, n_cubes=model.n_cubes, n_dofs=model.n_dofs, eigen=s.info,
         timings=timings, resolution_table=resolution_table, lattice=model if keep else None,
         node_modes=node_modes if keep else None, fixed_points=model.nodes[scene.fixed_nodes])
 
 
-def modal(model: Any, *, n_modes: int | None = None, max_frequency: float | None = None, mesh: Any = None,
-          resolution: int | str | None = None, tolerance: float = DEFAULT_RESOLUTION_TOLERANCE,
-          resolutions=None, fix=None, fix_vertices=None, element: str = DEFAULT_ELEMENT, lumped: bool = False,
-          damping_ratio=None, rayleigh=None, keep_rigid: bool = False, keep_lattice: bool = False,
-          eigensolver: str = "auto", backend: str = "auto", max_modes: int = 200, max_memory: float | None = None,
-          voxelize_options: dict | None = None, progress: bool = False, method: str | None = None) -> ModalBasis:
+_LEGACY = {"tolerance": "resolution=AutoResolution(tolerance=...)",
+           "resolutions": "resolution=AutoResolution(resolutions=...)",
+           "voxelize_options": "voxel=VoxelOptions(...)", "damping_ratio": "damping=<ratio>",
+           "rayleigh": "damping=Damping(rayleigh=(alpha, beta))", "eigensolver": "eigen=EigenOptions(solver=...)",
+           "method": "eigen=EigenOptions(solver=...)", "backend": "eigen=EigenOptions(backend=...)",
+           "max_memory": "eigen=EigenOptions(max_memory=...)"}
+"""Keywords :func:`modal` took before its options were grouped -> what replaces them."""
+
+
+def _from_legacy(legacy: dict, resolution, voxel, damping, eigen):
+    """Fold the pre-grouping keywords of :func:`modal` into the option objects (warns once)."""
+    import warnings
+
+    unknown = sorted(set(legacy) - set(_LEGACY))
+    if unknown:
+        raise TypeError(f"modal() got unexpected keyword argument(s) {', '.join(map(repr, unknown))}")
+    if not legacy:
+        return resolution, voxel, damping, eigen
+    warnings.warn("modal(" + ", ".join(legacy) + "=...) is deprecated: use "
+                  + "; ".join(_LEGACY[k] for k in legacy), DeprecationWarning, stacklevel=3)
+
+    def one(new_name, new_value, old_names):
+        if new_value is not None:
+            raise InputError(f"give {new_name}= or its old spelling {'/'.join(old_names)}=, not both")
+
+    auto_keys = [k for k in ("tolerance", "resolutions") if legacy.get(k) is not None]
+    if auto_keys and isinstance(resolution, str) and resolution.strip().lower() == "auto":
+        base = AutoResolution()
+        resolution = AutoResolution(resolutions=legacy.get("resolutions") or base.resolutions,
+                                    tolerance=legacy.get("tolerance") or base.tolerance)
+    if legacy.get("voxelize_options"):
+        one("voxel", voxel, ["voxelize_options"])
+        voxel = VoxelOptions.coerce(legacy["voxelize_options"])
+    if legacy.get("damping_ratio") is not None or legacy.get("rayleigh") is not None:
+        one("damping", damping, ["damping_ratio", "rayleigh"])
+        damping = Damping(ratio=legacy.get("damping_ratio"), rayleigh=legacy.get("rayleigh"))
+    solver = {legacy.get(k) for k in ("eigensolver", "method")} - {None, "auto"}
+    if len(solver) > 1:
+        raise InputError(f"method= (the old name of eigensolver) contradicts eigensolver=: {sorted(solver)}")
+    eig = {k: v for k, v in (("solver", solver.pop() if solver else None), ("backend", legacy.get("backend")),
+                             ("max_memory", legacy.get("max_memory"))) if v is not None}
+    if eig:
+        one("eigen", eigen, ["eigensolver", "method", "backend", "max_memory"])
+        eigen = EigenOptions(**eig)
+    return resolution, voxel, damping, eigen
+
+
+def modal(model: Any, *, n_modes: int | None = None, max_frequency: float | None = None, max_modes: int = 200,
+          mesh: Any = None, resolution: int | str | AutoResolution | None = None,
+          voxel: VoxelOptions | dict | None = None, fix=None, fix_vertices=None, element: str = DEFAULT_ELEMENT,
+          lumped: bool = False, damping: Damping | float | None = None, eigen: EigenOptions | str | None = None,
+          keep_rigid: bool = False, keep_lattice: bool = False, progress: bool = False, **legacy: Any) -> ModalBasis:
     """Vibration modes of a model, baked onto its source mesh.
 
     Parameters
     ----------
     model : Scene, CubeModel or mesh-like
         A :class:`~sc_fem.Scene` (mesh, lattice and fixed nodes together; then ``mesh``, ``fix``,
-        ``fix_vertices``, ``resolution`` and ``voxelize_options`` are not given), a lattice, or
-        anything :func:`sc_fem.load_mesh` accepts (then voxelized with ``resolution`` and
-        ``voxelize_options``).
+        ``fix_vertices``, ``resolution`` and ``voxel`` are not given), a lattice, or anything
+        :func:`sc_fem.load_mesh` accepts (then voxelized with ``resolution`` and ``voxel``).
     n_modes : int, optional
         Number of (elastic) modes. Default :data:`DEFAULT_N_MODES` unless ``max_frequency`` is given.
     max_frequency : float, optional
-        Keep all modes below this frequency, Hz (at most ``n_modes`` when both are given, at most
-        ``max_modes`` in any case).
+        Keep all modes below this frequency, Hz (at most ``n_modes`` when both are given).
+    max_modes : int
+        Upper limit on the elastic modes returned (``eigen["truncated"]`` says when it cut the
+        ``max_frequency`` or ``n_modes`` request short).
     mesh : mesh-like, optional
         Source mesh to bake onto when ``model`` is a :class:`CubeModel`; without it the modes are
         given at the lattice nodes (``vertices = model.nodes``, no faces).
-    resolution : int or "auto", optional
-        Grid for a mesh-like ``model`` (cubes along the longest axis; default 32). ``"auto"``:
-        the coarsest of ``resolutions`` whose first ``n_modes`` frequencies (or those below
-        ``max_frequency``) agree with the next finer grid within ``tolerance``.
-    tolerance : float
-        Relative frequency tolerance of ``resolution="auto"``.
-    resolutions : sequence of int, optional
-        Grids tried by ``"auto"`` (default :data:`AUTO_RESOLUTIONS`).
+    resolution : int, "auto" or AutoResolution, optional
+        Grid for a mesh-like ``model`` (cubes along the longest axis; default 32). ``"auto"`` or
+        :class:`~sc_fem.modes.options.AutoResolution` (``resolutions``, ``tolerance``): the
+        coarsest grid whose first ``n_modes`` frequencies (or those below ``max_frequency``)
+        agree with the next finer grid.
+    voxel : VoxelOptions or dict, optional
+        How a mesh-like ``model`` is voxelized (:class:`~sc_fem.lattice.options.VoxelOptions`:
+        ``scale``, ``youngs``, ``fill``, ...).
     fix : str, FixSpec, callable or list, optional
-        Fixed nodes (:func:`sc_fem.fem.boundary.fixed_nodes`), e.g. ``"z<min+0.01"``.
+        Fixed nodes (:func:`sc_fem.fem.boundary.fixed_nodes`), e.g. ``"z<min+0.01"``;
+        ``"default"`` = a built-in model's supports.
     fix_vertices : array_like of int, optional
         Source-mesh vertex indices whose cubes are fixed (needs a mesh).
     element : {"q1i", "q1", "q1sri"}
         Element type.
     lumped : bool
         Lumped instead of consistent mass.
-    damping_ratio : float or array_like (k,), optional
-        Modal damping ratio(s); default :data:`DEFAULT_DAMPING_RATIO`.
-    rayleigh : (alpha, beta), optional
-        Rayleigh damping ``C = alpha M + beta K`` instead of ``damping_ratio``.
+    damping : float, array_like (k,) or Damping, optional
+        Modal damping ratio(s), or :class:`~sc_fem.modes.options.Damping` (e.g. Rayleigh);
+        default :data:`~sc_fem.modes.options.DEFAULT_DAMPING_RATIO`.
+    eigen : EigenOptions or str, optional
+        Eigensolver options (:class:`~sc_fem.fem.eigen.EigenOptions`: ``solver``, ``backend``,
+        ``max_memory``) or just the solver's name (``"lobpcg"``). ``"auto"`` (default) takes the
+        one predicted faster on this machine whose memory fits (the reason is in
+        ``eigen["reason"]`` of the result).
     keep_rigid : bool
         Keep rigid-body modes (flagged in ``rigid``) instead of removing them.
     keep_lattice : bool
         Keep the lattice and the node modes in the result.
-    eigensolver : {"auto", "shift-invert", "lobpcg"}
-        See :mod:`sc_fem.fem.eigen`; ``"auto"`` takes the one predicted faster on this machine whose
-        memory fits ``max_memory`` (the reason is in ``eigen["reason"]``).
-    backend : {"auto", "cholmod", "cholespy", "splu"}
-        Factorization backend for shift-invert.
-    max_modes : int
-        Upper limit on the elastic modes returned (``eigen["truncated"]`` says when it cut the
-        ``max_frequency`` or ``n_modes`` request short).
-    max_memory : float, optional
-        Memory budget in bytes for the automatic solver choice.
-    voxelize_options : dict, optional
-        Keyword arguments for :func:`sc_fem.voxelize` (``scale``, ``youngs``, ``fill``, ...).
     progress : bool
         Print stage messages to stderr.
-    method : str, optional
-        Deprecated name of ``eigensolver`` (warns).
+    **legacy
+        The keywords of earlier versions (``tolerance``, ``resolutions``, ``voxelize_options``,
+        ``damping_ratio``, ``rayleigh``, ``eigensolver``, ``method``, ``backend``,
+        ``max_memory``) still work and warn (DeprecationWarning).
 
     Returns
     -------
@@ -439,60 +438,40 @@ def modal(model: Any, *, n_modes: int | None = None, max_frequency: float | None
     SolverError
         The eigensolver failed or the problem does not fit in memory.
     """
-    if method is not None:                     # the old name of eigensolver
-        import warnings
-
-        warnings.warn("modal(method=...) is now eigensolver=...", DeprecationWarning, stacklevel=2)
-        if eigensolver not in ("auto", method):
-            raise InputError(f"method={method!r} (the old name of eigensolver) contradicts eigensolver={eigensolver!r}")
-        eigensolver = method
     from ..scene import Scene
 
-    element = check_element(element)
-    if n_modes is not None:
-        n_modes = positive_int(n_modes, "n_modes")
-    if max_frequency is not None:
-        max_frequency = positive_scalar(max_frequency, "max_frequency")
-    if damping_ratio is not None and rayleigh is not None:
-        raise InputError("give damping_ratio or rayleigh, not both")
-    vopts = dict(voxelize_options or {})
-    kw = dict(n_modes=n_modes, max_frequency=max_frequency, element=element, lumped=lumped,
-              damping_ratio=damping_ratio, rayleigh=rayleigh, keep_rigid=keep_rigid, keep_lattice=keep_lattice,
-              eigensolver=eigensolver, backend=backend, max_modes=positive_int(max_modes, "max_modes"),
-              max_memory=max_memory, progress=progress)
-    if isinstance(model, Scene):
-        given = [k for k, v in (("mesh", mesh), ("fix", fix), ("fix_vertices", fix_vertices),
-                                ("resolution", resolution), ("voxelize_options", vopts)) if v is not None and not (isinstance(v, dict) and not v)]
+    resolution, voxel, damping, eigen = _from_legacy(legacy, resolution, voxel, damping, eigen)
+    req = ModalRequest(n_modes=n_modes, max_frequency=max_frequency, max_modes=max_modes, element=element,
+                       lumped=lumped, damping=damping, eigen=eigen, keep_rigid=keep_rigid,
+                       keep_lattice=keep_lattice, progress=progress)
+    if isinstance(model, (Scene, CubeModel)):
+        given = [k for k, v in (("resolution", resolution), ("voxel", voxel)) if v is not None]
+        if isinstance(model, Scene):
+            given += [k for k, v in (("mesh", mesh), ("fix", fix), ("fix_vertices", fix_vertices)) if v is not None]
         if given:
-            raise InputError(f"a Scene already has its mesh, lattice and fixed nodes: do not pass {', '.join(given)}")
-        return finish(solve_scene(model, **kw), kw, {})
-    if isinstance(model, CubeModel):
-        if resolution is not None:
-            raise InputError("resolution= applies to a mesh; a CubeModel already has its grid "
-                             "(pass the mesh as model= for resolution='auto')")
-        if vopts:
-            raise InputError("voxelize_options= applies to a mesh, not to a CubeModel")
-        scene = Scene.from_model(model, mesh, fix=fix, fix_vertices=fix_vertices)
-        return finish(solve_scene(scene, **kw), kw, {})
+            raise InputError(f"a {type(model).__name__} already has its grid{' and fixed nodes' if isinstance(model, Scene) else ''}: "
+                             f"do not pass {', '.join(given)} (pass the mesh as model= to voxelize it)")
+        scene = model if isinstance(model, Scene) else Scene.from_model(model, mesh, fix=fix, fix_vertices=fix_vertices)
+        return finish(solve_scene(scene, req), req, {})
     if mesh is not None:
         raise InputError("mesh= is only used with a CubeModel; pass the mesh as model=")
     from ..geometry.mesh import load_mesh
 
+    vopts = VoxelOptions.coerce(voxel)
+    resolution = parse_resolution(resolution)
     t0 = time.perf_counter()
     src_mesh = load_mesh(model)
     timings = {"load": time.perf_counter() - t0}
-    if isinstance(resolution, str) and resolution.strip().lower() == "auto":
+    if isinstance(resolution, AutoResolution):
         from .auto import modal_auto
 
-        return modal_auto(src_mesh, tolerance=tolerance, resolutions=resolutions, vopts=vopts, timings=timings,
-                          fix=fix, fix_vertices=fix_vertices, kw=kw)
-    if isinstance(resolution, str):
-        try:
-            resolution = int(resolution)
-        except ValueError:
-            raise InputError(f"resolution must be an integer or 'auto', got {resolution!r}") from None
+        return modal_auto(src_mesh, resolution, vopts, req, fix=fix, fix_vertices=fix_vertices, timings=timings)
+    if resolution is not None:
+        if vopts.resolution not in (None, resolution) or vopts.pitch is not None:
+            raise InputError(f"resolution={resolution} contradicts voxel options {vopts!r}")
+        vopts = vopts.replace(resolution=resolution)
     t0 = time.perf_counter()
-    scene = Scene.from_mesh(src_mesh, resolution=resolution, fix=fix, fix_vertices=fix_vertices, **vopts)
+    scene = Scene.from_mesh(src_mesh, vopts, fix=fix, fix_vertices=fix_vertices)
     timings["voxelize"] = time.perf_counter() - t0
     _log(f"  voxelized: {scene.model.n_cubes} cubes, {scene.model.n_dofs} DOFs", progress)
-    return finish(solve_scene(scene, **kw), kw, timings)
+    return finish(solve_scene(scene, req), req, timings)
