@@ -77,8 +77,11 @@ def vibration(t: np.ndarray, z: np.ndarray):
     return mid, period, dec
 
 
-def run_setting(m, fixed, tip, kind, ss, it, warm, seconds):
-    s = XPBDSolver(m, 1 / 60, substeps=ss, iterations=it, constraints=kind, fixed_nodes=fixed, warm_start=warm)
+def run_setting(m, fixed, tip, kind, ss, it, warm, seconds, kernel="auto"):
+    s = XPBDSolver(m, 1 / 60, substeps=ss, iterations=it, constraints=kind, fixed_nodes=fixed, warm_start=warm,
+                   kernel=kernel)
+    if s.kernel == "numba":
+        XPBDSolver(m, 1e-5, substeps=1, fixed_nodes=fixed, kernel="numba").step()   # compile outside the timing
     z0 = m.nodes_m[tip, 2].mean()
     z, t0 = [], time.perf_counter()
     blew = ""
@@ -106,17 +109,26 @@ def main(argv=None) -> int:
     ref_sag, _, ref_T = linear_fem(m)
     print(f"bar {m.dims} cubes, {m.n_nodes} nodes: linear FEM static tip sag {ref_sag:.4f} m, "
           f"first period {ref_T:.4f} s")
-    settings = [("neohookean", 25, 1, False), ("neohookean", 50, 1, False), ("neohookean", 100, 1, False),
-                ("neohookean", 50, 1, True), ("neohookean", 25, 2, False), ("corotational", 50, 1, False),
-                ("distance", 50, 1, True)]
+    from sc_fem.dynamics import xpbd_jit
+
+    # the Neo-Hookean Gauss-Seidel sweep runs compiled (numba) when installed, else numpy: both measured
+    kernels = ["numba", "numpy"] if xpbd_jit.available() else ["numpy"]
+    settings = [("neohookean", 25, 1, False, k) for k in kernels] + \
+        [("neohookean", 50, 1, False, k) for k in kernels] + [("neohookean", 100, 1, False, kernels[0]),
+                                                              ("neohookean", 50, 1, True, kernels[0]),
+                                                              ("neohookean", 25, 2, False, kernels[0]),
+                                                              ("corotational", 50, 1, False, "numpy"),
+                                                              ("distance", 50, 1, True, "numpy")]
     if args.quick:
-        settings = [("neohookean", 25, 1, False), ("neohookean", 50, 1, False), ("neohookean", 50, 1, True),
-                    ("corotational", 50, 1, False)]
+        settings = [("neohookean", 25, 1, False, k) for k in kernels] + \
+            [("neohookean", 50, 1, False, k) for k in kernels] + [("neohookean", 50, 1, True, kernels[0]),
+                                                                  ("corotational", 50, 1, False, "numpy")]
     seconds = 2.6 * ref_T
-    rows, pts = [], []
-    for kind, ss, it, warm in settings:
-        r = run_setting(m, fixed, tip, kind, ss, it, warm, seconds)
-        name = f"sc_fem {kind} {ss}x{it}{' warm' if warm else ''}"
+    rows, pts, ms_of = [], [], {}
+    for kind, ss, it, warm, kernel in settings:
+        r = run_setting(m, fixed, tip, kind, ss, it, warm, seconds, kernel)
+        name = f"sc_fem {kind} {ss}x{it}{' warm' if warm else ''} [{kernel}]"
+        ms_of[(kind, ss, it, warm, kernel)] = r["ms"]
         rows.append([name, f"{1e3 / 60 / ss:.3g}", r["sag"], r["sag"] / ref_sag, r["period"] / ref_T,
                      r["dec"], r["dec"] / (2 * np.pi), r["peak"] / (2 * ref_sag), r["ms"], r["blew"] or "no"])
         pts.append((name, r["ms"], abs(r["sag"] / ref_sag - 1), abs(r["period"] / ref_T - 1)))
@@ -126,6 +138,10 @@ def main(argv=None) -> int:
         pts.append((name + PEER_TAG, ms, abs(ratio - 1), np.nan))
     print_table(["method", "substep ms", "static sag m", "sag/FEM", "period/FEM", "log dec", "zeta",
                  "peak/(2 FEM sag)", "ms/frame", "blew up"], rows)
+    for ss in (25, 50):
+        a, b = ms_of.get(("neohookean", ss, 1, False, "numpy")), ms_of.get(("neohookean", ss, 1, False, "numba"))
+        if a and b:
+            print(f"neohookean {ss}x1: numpy sweep / compiled sweep = {a / b:.2f}x ({a:.1f} vs {b:.1f} ms/frame)")
 
     # large-substep stability sweep on a coarse bar
     mc = bar(16 if args.quick else 24)

@@ -24,8 +24,8 @@ from .._validate import as_float_array, as_points, positive_int, positive_scalar
 from ..errors import InputError, InstabilityError
 from ..lattice.cubes import CubeModel
 from .base import Energy
-from .corotational import centre_F, polar_rotation
-from .xpbd_kernels import (MATCHING_KIND, MATCHINGS, S_REF, _as_fixed, _scatter_add, _volume_terms, corotational_terms, cube_colors,
+from .corotational import DN_CENTRE, centre_F, polar_rotation
+from .xpbd_kernels import (L_REF, MATCHING_KIND, MATCHINGS, S_REF, _as_fixed, _scatter_add, _volume_terms, corotational_terms, cube_colors,
                            neohookean_terms)
 
 CONSTRAINTS = ("corotational", "neohookean", "distance")
@@ -87,13 +87,17 @@ class XPBDSolver:
         total energy exceeds its start by more than this many :attr:`energy_scale` (default 10).
     positions, velocities : array_like, shape (m, 3), optional
         Initial state in metres and m/s (default: rest positions ``model.nodes_m``, zero).
+    kernel : {"auto", "numba", "numpy"}
+        Sweep of the Neo-Hookean Gauss-Seidel iteration: compiled (:mod:`sc_fem.dynamics.xpbd_jit`,
+        needs numba) or vectorized numpy per colour; ``"auto"``: compiled when numba is installed.
+        Both give the same result up to round-off. The chosen one is :attr:`kernel`.
     """
 
     def __init__(self, model: CubeModel, dt: float, *, substeps: int = 10, iterations: int = 1,
                  constraints: str = "neohookean", gravity=(0.0, 0.0, -9.81), fixed_nodes=None,
                  damping: float = 0.0, gauss_seidel: bool = True, relaxation: float = 1.0,
                  warm_start: bool = False, max_energy_growth: float = 10.0,
-                 positions=None, velocities=None) -> None:
+                 positions=None, velocities=None, kernel: str = "auto") -> None:
         if not isinstance(model, CubeModel):
             raise InputError(f"model must be a CubeModel, got {type(model).__name__}")
         if constraints not in CONSTRAINTS:
@@ -125,6 +129,8 @@ class XPBDSolver:
         self.last_energy_growth = 0.0
         """Energy growth (see :meth:`energy_growth`) after the last :meth:`step`."""
         self.h = model.h
+        self.kernel = _choose_kernel(kernel, constraints == "neohookean" and self.gauss_seidel)
+        """The sweep that runs: ``"numba"`` or ``"numpy"``."""
         self._build()
         e0 = self.energy()
         self._energy0 = e0.total
@@ -140,6 +146,7 @@ class XPBDSolver:
         V = self.h ** 3
         lam, mu = md.lame()
         colors = cube_colors(md)
+        self._hexes64 = np.ascontiguousarray(md.hexes, dtype=np.int64)
         if self.constraints == "neohookean":
             lam_nh = lam + mu
             self._gamma = 1.0 + mu / lam_nh
@@ -179,6 +186,7 @@ class XPBDSolver:
 
         # per group: constraint indices, their nodes and inverse masses (last group = all, for Jacobi)
         self._gidx = [*groups, np.arange(len(nodes_of))]
+        self._order = np.ascontiguousarray(np.concatenate(groups), dtype=np.int64)   # colour by colour
         self._gnodes = [nodes_of[i] for i in self._gidx]
         self._gw = [self.w[nd][..., None] for nd in self._gnodes]
 
@@ -296,6 +304,12 @@ class XPBDSolver:
                    "corotational": self._project_corot}[self.constraints]
         if self.constraints == "corotational":
             self._update_rotations(x)
+        if self.kernel == "numba":
+            from .xpbd_jit import nh_sweep
+
+            nh_sweep(x, self._hexes64, self._order, self.w, self._lamD, self._lamH, a_t[0], a_t[1],
+                     self._gamma, L_REF, DN_CENTRE, self.h)
+            return
         if self.gauss_seidel:
             for g in range(len(self._gidx) - 1):
                 project(x, g, *a_t)
@@ -479,6 +493,22 @@ class XPBDSolver:
         kin = 0.5 * float(np.sum(self.mass[:, None] * v * v))
         grav = -float(np.sum(self.mass * ((x - self.rest) @ self.gravity)))
         return XPBDEnergy(kinetic=kin, gravity=grav, elastic=self.elastic_energy(x))
+
+
+def _choose_kernel(kernel: str, applicable: bool) -> str:
+    """``"numba"`` or ``"numpy"`` for the requested ``kernel`` (see :class:`XPBDSolver`)."""
+    from . import xpbd_jit
+
+    if kernel not in ("auto", "numba", "numpy"):
+        raise InputError(f"kernel must be 'auto', 'numba' or 'numpy', got {kernel!r}")
+    if kernel == "numba":
+        if not xpbd_jit.available():
+            raise InputError("kernel='numba' needs numba (pip install 'sc_fem[fast]'); kernel='numpy' runs without it")
+        if not applicable:
+            raise InputError("the compiled kernel covers the Neo-Hookean Gauss-Seidel sweep only "
+                             "(constraints='neohookean', gauss_seidel=True)")
+        return "numba"
+    return "numba" if kernel == "auto" and applicable and xpbd_jit.available() else "numpy"
 
 
 def simulate_xpbd(model: CubeModel, dt: float, n_steps: int, *, substeps: int = 10, iterations: int = 1,
