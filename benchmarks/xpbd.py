@@ -166,7 +166,13 @@ def main(argv=None) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axs = plt.subplots(1, 2, figsize=(11, 4.2))
+    import matplotlib.ticker  # noqa: F401
+
+    fig = plt.figure(figsize=(11, 5.6))
+    gs = fig.add_gridspec(2, 2, height_ratios=(4.2, 1.0))
+    axs = [fig.add_subplot(gs[0, 0]), fig.add_subplot(gs[0, 1])]
+    leg = fig.add_subplot(gs[1, :])
+    leg.axis("off")
     for ax, k, lab in ((axs[0], 2, "|static sag / FEM - 1|"), (axs[1], 3, "|period / FEM - 1|")):
         for name, ms, *errs in pts:
             e = errs[k - 2]
@@ -174,10 +180,11 @@ def main(argv=None) -> int:
                 ax.scatter(ms, max(e, 1e-4), label=name, marker="o" if name.startswith("sc_fem") else "s")
         ax.set_xscale("log")
         ax.set_yscale("log")
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         ax.set_xlabel("ms / frame (60 fps)")
         ax.set_ylabel(lab)
         ax.grid(True, which="both", lw=0.3)
-    axs[0].legend(fontsize=6)
+    leg.legend(*axs[0].get_legend_handles_labels(), fontsize=7, loc="center", ncol=3, frameon=False)
     fig.suptitle(f"XPBD on the 4 m bar ({m.n_nodes} nodes) vs linear FEM")
     save_figure(fig, "xpbd.png", dpi=120)
     return 0
