@@ -44,7 +44,7 @@ class Scene:
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def from_mesh(cls, source: Any, options: Any = None, /, *, fix=None, fix_vertices=None,
+    def from_mesh(cls, source: Any, options: Any = None, *, fix=None, fix_vertices=None,
                   **fields: Any) -> "Scene":
         """Load (any :func:`sc_fem.load_mesh` input), voxelize and fix.
 

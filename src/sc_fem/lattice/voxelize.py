@@ -281,7 +281,7 @@ def _keep(model: CubeModel, keep: str, info: dict) -> CubeModel:
     return model.with_info(**info, dropped_cubes=0)
 
 
-def voxelize(mesh: Any, options: VoxelOptions | None = None, /, **fields: Any) -> CubeModel:
+def voxelize(mesh: Any, options: VoxelOptions | None = None, **fields: Any) -> CubeModel:
     """Voxelize a model into elastic cubes (the Squashing Cubes model).
 
     Parameters
