@@ -11,11 +11,13 @@ coordinate per point (see :mod:`.param`).
 Because ``u`` is fixed per point, the data of every curve and coordinate is a frames x points
 grid ``X`` and the 32-column design matrix of Eq. 25 is the Kronecker product ``T (x) U``; the
 least-squares solution is therefore exactly ``C = pinv(T) X pinv(U)^T`` (column-scaled, SVD
-truncation at ``rcond``), done for all curves and coordinates in one batched computation.
+truncation at ``rcond``), done for all curves and coordinates in one batched computation
+(:mod:`.varpro`; curves with the same parameter values share one space basis and its SVD).
 
 ``r`` and ``alpha`` are not given by the paper. The constants are linear, so ``(r, alpha)`` are
-found by variable projection: for each pair solve the linear problem, minimise the residual on a
-log-spaced grid, then refine with bounded L-BFGS-B in log space. ``alpha`` is bounded by the
+found by variable projection: the residual of the linear problem on the whole log-spaced grid at
+once, then alpha refined by batched zoom levels at the best grid r and its neighbours and
+successive parabolic steps in ``log r`` (:func:`_search`). ``alpha`` is bounded by the
 Nyquist rate ``pi / max(ds)`` of the fitted frames (beyond it ``sin(alpha t)`` aliases: it fits
 the frames and oscillates in between). ``criterion="loo"`` minimises instead the
 leave-one-interior-frame-out prediction error, which targets the skipped frames directly.
@@ -26,7 +28,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import minimize
 
 from .._validate import as_float_array, positive_scalar
 from ..errors import InputError
@@ -34,6 +35,7 @@ from .basis import paper_scale, space_basis, time_basis
 from .param import PARAMETRIZATIONS, check_u, parametrize
 from .rigid import RIGID_INTERPOLATIONS, RigidMotion
 from .rigid import remove_rigid as _remove_rigid
+from .varpro import FitData, SpaceSide, leave_one_out, residual, solve, space_rows, space_side, time_side
 
 CRITERIA = ("residual", "loo")
 
@@ -129,8 +131,7 @@ class PDEModel:
         if not np.all(np.isfinite(s)):
             raise InputError("t must be finite")
         tb = time_basis(s.ravel(), self.alpha)                     # (nt, 4)
-        ub = space_basis(self.u, self.r)                           # (C, P, 8)
-        out = np.einsum("ti,cwij,cpj->tcpw", tb, self.coefficients, ub, optimize=True)
+        out = _synthesize(tb, self.coefficients, space_basis(space_rows(self.u), self.r))
         if self.reference is not None:
             out = out + self.reference[None]
         return out[0] if t_arr.ndim == 0 else out
@@ -144,141 +145,160 @@ class PDEModel:
         """
         t_arr = np.asarray(t, dtype=float)
         s = np.atleast_1d(t_arr if normalized else self.normalize(t_arr)).ravel()
-        aligned = self.evaluate_aligned(s, normalized=True)
-        out = aligned if self.rigid is None else self.rigid.to_world(aligned, s)
+        if self.rigid is None:
+            out = self.evaluate_aligned(s, normalized=True)
+            return out[0] if t_arr.ndim == 0 else out
+        if not np.all(np.isfinite(s)):
+            raise InputError("t must be finite")
+        # RigidMotion.to_world of the aligned curves, x = anchor + R^T (aligned - pivot) per point
+        # (row vectors: aligned @ R), with R applied to the time-combined constants, not to every point
+        rot, anchors = self.rigid.at(s)                                         # (nt, C, 3, 3), (nt, C, 3)
+        out = _synthesize(time_basis(s, self.alpha), self.coefficients, space_basis(space_rows(self.u), self.r), rot)
+        out += (anchors[:, :, None, :] - self.rigid.pivot[None, :, None, :] @ rot)
+        if self.reference is not None:
+            out += self.reference[None] @ rot
         return out[0] if t_arr.ndim == 0 else out
 
 
 # ----------------------------------------------------------------------------- linear algebra
-def _svd(a: np.ndarray):
-    """Column-normalised thin SVD of (batched) ``a``: ``a / n = q diag(sv) vt``."""
-    n = np.linalg.norm(a, axis=-2)
-    n = np.where(n > 0, n, 1.0)
-    q, sv, vt = np.linalg.svd(a / n[..., None, :], full_matrices=False)
-    return q, sv, vt, n
+def _synthesize(tb: np.ndarray, coef: np.ndarray, ub: np.ndarray, rot: np.ndarray | None = None) -> np.ndarray:
+    """``sum_ij C[c, w, i, j] T_i(t) U_j(u_cp)`` as (nt, C, P, 3) from the time basis ``tb``
+    (nt, 4), the constants (C, 3, 4, 8) and the space basis ``ub`` (G, P, 8) of
+    :func:`.varpro.space_rows` (G = 1: shared by every curve); with ``rot`` (nt, C, 3, 3), the
+    result multiplied by ``rot`` per point, applied to the (nt, C, 8, 3) time-combined constants
+    instead of to every point."""
+    tc = np.einsum("ti,cwij->tcjw", tb, coef)                      # (nt, C, 8, 3)
+    if rot is not None:
+        tc = tc @ rot
+    return (ub[0] if ub.shape[0] == 1 else ub) @ tc                # (P, 8) or (C, P, 8) @ (nt, C, 8, 3)
 
 
-def _space_side(x: np.ndarray, u: np.ndarray, r: float, xx: np.ndarray | None = None):
-    """SVD of the space basis and the data in its orthonormal coordinates (reused across alpha).
+class _Sides:
+    """Space sides of the rates ``r`` already evaluated (the grid's, then those of the
+    refinement): the space side (basis, SVD, projection of the data) is the expensive half of an
+    objective evaluation and is reused whenever only ``alpha`` changes."""
 
-    Returns ``(qu, su, vtu, un)``, ``xu`` (C, 3, F, 8) and ``out_u`` (F,): the squared data norm
-    per frame outside span(U), which no coefficient can fit.
-    """
-    qu, su, vtu, un = _svd(space_basis(u, r))
-    xu = x @ qu[:, None]                                                 # (C, 3, F, 8)
-    # qu has orthonormal columns: |x - qu qu^T x|^2 = |x|^2 - |qu^T x|^2 per frame (no (C, 3, F, P) temporary)
-    if xx is None:
-        xx = np.einsum("cwfp,cwfp->f", x, x)
-    out = xx - np.einsum("cwfj,cwfj->f", xu, xu)
-    return (qu, su, vtu, un), xu, np.maximum(out, 0.0)
+    def __init__(self, data: FitData) -> None:
+        self.data = data
+        self._store: dict[float, SpaceSide] = {}
 
+    def add(self, space: SpaceSide) -> SpaceSide:
+        for k, rk in enumerate(space.r):
+            self._store[float(rk)] = space.take(k)
+        return space
 
-def _time_side(s: np.ndarray, alpha: float, criterion: str):
-    """Time basis and its column-normalised SVD(s) for one ``alpha`` (reused across r).
-
-    Returns ``(tb, svd)`` with ``svd`` the SVD of ``tb`` (``"residual"``) or a list of
-    ``(j, keep, svd of tb[keep])`` per held-out interior frame ``j`` (``"loo"``).
-    """
-    tb = time_basis(s, alpha)
-    if criterion == "residual":
-        return tb, _svd(tb)
-    keeps = [np.arange(len(s)) != j for j in range(1, len(s) - 1)]   # held-out frames (a handful)
-    return tb, [(j + 1, keep, _svd(tb[keep])) for j, keep in enumerate(keeps)]
-
-
-def _project(xu: np.ndarray, su: np.ndarray, tsvd, rcond: float):
-    """Truncated projection onto span(T (x) U) of data already in U's orthonormal coordinates.
-
-    ``tsvd = _svd(T)``. The Kronecker design matrix has singular values ``st_a * su_b``; pairs
-    below ``rcond`` times the largest are dropped *jointly* (truncating T and U separately would
-    leave a product condition number up to cond(T) * cond(U) and lose all precision in the
-    coefficients). Returns ``z`` (C, 3, 4, 8) coordinates in the orthonormal bases and the mask.
-    """
-    qt, st, vtt, tn = tsvd
-    prod = st[None, :, None] * su[:, None, :]                           # (C, 4, 8)
-    mask = prod > rcond * prod.max(axis=(1, 2), keepdims=True)
-    z = (qt.T @ xu) * mask[:, None]
-    return z, mask
-
-
-def _solve(x: np.ndarray, s: np.ndarray, u: np.ndarray, r: float, alpha: float, rcond: float,
-           space=None) -> np.ndarray:
-    """Coefficients (C, 3, 4, 8) of the separable least squares for data ``x`` (C, 3, F, P);
-    ``space`` is ``_space_side(x, u, r)`` if already computed."""
-    (qu, su, vtu, un), xu, _ = _space_side(x, u, r) if space is None else space
-    tsvd = _svd(time_basis(s, alpha))
-    qt, st, vtt, tn = tsvd
-    z, mask = _project(xu, su, tsvd, rcond)
-    inv = np.where(mask, 1.0 / np.where(mask, st[None, :, None] * su[:, None, :], 1.0), 0.0)
-    coef = vtt.T @ (z * inv[:, None]) @ vtu[:, None]
-    return coef / (tn[None, None, :, None] * un[:, None, None, :])
-
-
-def _objective(space, tside, rcond: float, criterion: str) -> float:
-    """Sum of squared residuals (``"residual"``) or of leave-one-interior-frame-out errors,
-    given the space side ``space = _space_side(x, u, r)`` and ``tside = _time_side(s, alpha,
-    criterion)``."""
-    (qu, su, *_), xu, out_u = space
-    tb, tsvd = tside
-    if criterion == "residual":
-        z, _ = _project(xu, su, tsvd, rcond)
-        return float(out_u.sum() + np.sum((xu - tsvd[0] @ z) ** 2))
-    total = 0.0
-    for j, keep, (qt, st, vtt, tn) in tsvd:     # loop over held-out frames (a handful)
-        z, _ = _project(xu[:, :, keep], su, (qt, st, vtt, tn), rcond)
-        g = (vtt @ (tb[j] / tn)) / st                                   # row j in the SVD basis
-        total += float(np.sum((xu[:, :, j] - np.einsum("a,cwab->cwb", g, z)) ** 2) + out_u[j])
-    return total
-
-
-class _SpaceCache:
-    """The last few ``_space_side(x, u, r)`` by ``r``: the space side (basis, SVD, projection of
-    the data) is the expensive half of an objective evaluation and is reused whenever only
-    ``alpha`` changes (``r`` given, or the alpha-steps of the refinement)."""
-
-    def __init__(self, x: np.ndarray, u: np.ndarray, size: int = 4) -> None:
-        self.x, self.u, self.size = x, u, size
-        self.xx = np.einsum("cwfp,cwfp->f", x, x)                   # |x|^2 per frame, for every r
-        self._store: dict[float, tuple] = {}
-
-    def __call__(self, r: float):
+    def __call__(self, r: float) -> SpaceSide:
         key = float(r)
         if key not in self._store:
-            if len(self._store) >= self.size:
-                self._store.pop(next(iter(self._store)))
-            self._store[key] = _space_side(self.x, self.u, key, self.xx)
+            self._store[key] = space_side(self.data, [key])
         return self._store[key]
 
 
-def _search(x, s, space_of: _SpaceCache, r, alpha, bounds_r, bounds_a, grid, rcond, criterion):
+def _objective(space: SpaceSide, s: np.ndarray, alpha, rcond: float, criterion: str) -> np.ndarray:
+    """Search objective (R, A) for every rate of ``space`` and of ``alpha``: the residual at the
+    fitted frames (``"residual"``) or the leave-one-interior-frame-out error (``"loo"``)."""
+    if criterion == "residual":
+        return residual(space, time_side(s, alpha), rcond)
+    return leave_one_out(space, s, alpha, rcond)
+
+
+ZOOM_POINTS = 17
+"""Points of every zoom level of the alpha refinement (each level shrinks the step 8-fold)."""
+ALPHA_STEP = 4e-3
+"""The alpha refinement zooms until its ``log alpha`` step is below this, then takes one
+parabolic step through the best three points."""
+R_TOL = 1e-2
+"""The r refinement stops when a parabolic step in ``log r`` is shorter than this (r is weakly
+identified: on the rope 1 % of r changes E_A by less than 1e-6)."""
+R_STEPS = 8
+"""At most this many parabolic steps in ``log r`` (each one a new space side)."""
+
+
+def _vertex(x0, x1, x2, f0, f1, f2):
+    """Abscissa of the vertex of the parabola through three points (nan if they are collinear)."""
+    den = (x1 - x0) * (f1 - f2) - (x1 - x2) * (f1 - f0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return x1 - 0.5 * ((x1 - x0) ** 2 * (f1 - f2) - (x1 - x2) ** 2 * (f1 - f0)) / den
+
+
+def _best_alpha(space: SpaceSide, s, ag, lims, rcond: float, criterion: str, near=None, first=None):
+    """``(alpha, objective)``, both (R,): alpha minimising the objective at every rate of ``space``.
+
+    Batched levels for all rates at once: the grid ``ag`` (whose objective ``first`` (R, len(ag))
+    may be given; with ``2 ZOOM_POINTS - 1`` more points spanning one grid step either side of
+    ``near`` (R,), the best ``log alpha`` at a nearby r, if given), then levels of
+    :data:`ZOOM_POINTS` around each best point until the step is below :data:`ALPHA_STEP`, then one
+    parabolic step through the best three points. Every level is one batched evaluation of
+    each rate with its own points (cheap: the time side and small matrix products).""" 
+    n_r, rows = len(space.r), np.arange(len(space.r))
+
+    def pairs(alpha_rows):           # objective of rate k with the alphas of row k: (R, n)
+        if criterion == "residual":
+            return residual(space, time_side(s, alpha_rows.ravel()), rcond, paired=True)
+        full = _objective(space, s, alpha_rows.ravel(), rcond, criterion)
+        return full.reshape(n_r, n_r, -1)[rows, rows]
+
+    if len(ag) == 1:
+        return np.full(n_r, float(ag[0])), (_objective(space, s, ag, rcond, criterion) if first is None else first)[:, 0]
+    step = float(np.log(ag[-1] / ag[0])) / (len(ag) - 1)
+    pts = np.broadcast_to(np.log(ag), (n_r, len(ag)))
+    if near is not None:
+        fine = np.asarray(near)[:, None] + step * np.linspace(-1.0, 1.0, 2 * ZOOM_POINTS - 1)
+        pts = np.sort(np.clip(np.concatenate([pts, fine], axis=1), *lims), axis=1)
+        vals = pairs(np.exp(pts))
+    else:
+        vals = _objective(space, s, ag, rcond, criterion) if first is None else first
+    best, f_best = np.empty(n_r), np.full(n_r, np.inf)
+    while True:                      # a handful of levels, each one batched evaluation
+        k = np.argmin(vals, axis=1)
+        better = vals[rows, k] < f_best
+        best[better], f_best[better] = pts[rows, k][better], vals[rows, k][better]
+        gaps = np.diff(pts, axis=1)
+        step = float(np.max(np.maximum(gaps[rows, np.maximum(k - 1, 0)], gaps[rows, np.minimum(k, gaps.shape[1] - 1)])))
+        if step <= ALPHA_STEP:
+            break
+        pts = np.clip(best[:, None] + step * np.linspace(-1.0, 1.0, ZOOM_POINTS), *lims)
+        vals = pairs(np.exp(pts))
+    inner = np.clip(k, 1, pts.shape[1] - 2)
+    xv = _vertex(*(pts[rows, inner + d] for d in (-1, 0, 1)), *(vals[rows, inner + d] for d in (-1, 0, 1)))
+    ok = (inner == k) & (pts[rows, k] == best) & (pts[rows, k - 1] < xv) & (xv < pts[rows, np.minimum(k + 1, pts.shape[1] - 1)])
+    if np.any(ok):                   # vertex of the parabola through the best three
+        fv = pairs(np.exp(np.where(ok, xv, best))[:, None])[:, 0]
+        better = ok & (fv < f_best)
+        best[better], f_best[better] = xv[better], fv[better]
+    return np.exp(best), f_best
+
+
+def _search(sides: _Sides, s, r, alpha, bounds_r, bounds_a, grid, rcond, criterion):
+    """(r, alpha) minimising the objective: the whole log-spaced grid at once, alpha refined at
+    every grid r (:func:`_best_alpha`, batched), then successive parabolic steps in ``log r``
+    through the best point and its neighbours, alpha refined at each new r (each new r needs a
+    space side, each alpha only the cheap time side)."""
     rg = np.array([r]) if r is not None else np.geomspace(*bounds_r, grid[0])
     ag = np.array([alpha]) if alpha is not None else np.geomspace(*bounds_a, grid[1])
-    tsides = [_time_side(s, ai, criterion) for ai in ag]               # time side once per alpha
-    obj = np.empty((len(rg), len(ag)))
-    for i, ri in enumerate(rg):                     # grid loops (small); space side once per r
-        space = space_of(ri)
-        obj[i] = [_objective(space, ts, rcond, criterion) for ts in tsides]
-    i, j = np.unravel_index(np.argmin(obj), obj.shape)
-    free = [k for k, v in enumerate((r, alpha)) if v is None]
-    start = np.log([rg[i], ag[j]])
-    lims = np.log([bounds_r, bounds_a])
-
-    floor = 1e-30 * (float(np.sum(x * x)) + 1e-300)
-
-    def f(z):   # log of the objective: the optimum may be an exact fit (objective -> 0)
-        p = start.copy()
-        p[free] = z
-        r_, a_ = np.exp(p)
-        return np.log(_objective(space_of(r_), _time_side(s, a_, criterion), rcond, criterion) + floor)
-
-    f0 = f(start[free])
-    res = minimize(f, start[free], method="L-BFGS-B", bounds=[tuple(lims[k]) for k in free],
-                   options={"ftol": 1e-8, "gtol": 1e-6, "maxiter": 40})
-    best = start.copy()
-    if res.fun < f0:
-        best[free] = res.x
-    r_opt, a_opt = np.exp(best)
-    return float(r_opt), float(a_opt), SearchResult(rg, ag, obj, criterion, float(np.exp(min(res.fun, f0)) - floor))
+    grid_space = sides.add(space_side(sides.data, rg))
+    obj = _objective(grid_space, s, ag, rcond, criterion)           # the whole grid at once
+    lims_a = tuple(np.log(bounds_a))
+    # alpha refined at the best grid r and its two neighbours (three grid r's: the first parabola in log r)
+    i = int(np.argmin(obj.min(axis=1)))
+    near = np.arange(len(rg))[max(0, min(i - 1, len(rg) - 3)):][:3]
+    sub = SpaceSide(*(getattr(grid_space, k)[near] for k in ("r", "su", "vtu", "un", "xu", "gram", "outf")), grid_space.xx)
+    a_best, f_best = _best_alpha(sub, s, ag, lims_a, rcond, criterion, first=obj[near])
+    tried = dict(zip(np.log(rg[near]).tolist(), zip(a_best.tolist(), f_best.tolist())))   # log r -> (alpha, objective)
+    lo, hi = np.log(bounds_r)
+    for _ in range(R_STEPS if r is None and len(rg) >= 3 else 0):   # a handful of steps
+        xs = np.array(sorted(tried))
+        fs = np.array([tried[v][1] for v in xs])
+        i = int(np.clip(np.argmin(fs), 1, len(xs) - 2))
+        xv = float(np.clip(_vertex(*xs[i - 1:i + 2], *fs[i - 1:i + 2]), xs[i - 1], xs[i + 1]))
+        if not np.isfinite(xv) or np.min(np.abs(xs - xv)) < R_TOL or not lo <= xv <= hi:
+            break
+        near = np.log([tried[xs[int(np.argmin(fs))]][0]])
+        a_v, f_v = _best_alpha(sides(np.exp(xv)), s, ag, lims_a, rcond, criterion, near=near)
+        tried[xv] = (float(a_v[0]), float(f_v[0]))
+    x_opt = min(tried, key=lambda v: tried[v][1])
+    a_opt, f_opt = tried[x_opt]
+    return float(np.exp(x_opt)), a_opt, SearchResult(rg, ag, obj, criterion, f_opt)
 
 
 # ----------------------------------------------------------------------------- public fit
@@ -394,18 +414,25 @@ def fit(curves, times, r: float | None = None, alpha: float | None = None, remov
     reference = aligned[0].copy() if offset == "first" else None
     if reference is not None:
         aligned = aligned - reference[None]
-    data = np.ascontiguousarray(aligned.transpose(1, 3, 0, 2))    # (C, 3, F, P)
+    data = FitData.build(aligned, uu)
     search = None
-    space_of = _SpaceCache(data, uu)
+    sides = _Sides(data)
     if r is None or alpha is None:
         ds = float(np.max(np.diff(s)))
         ab = alpha_bounds if alpha_bounds is not None else (ALPHA_LOW, np.pi / ds)
         if not (0 < r_bounds[0] < r_bounds[1] and 0 < ab[0] < ab[1]):
             raise InputError(f"bounds must be 0 < low < high, got r_bounds={r_bounds}, alpha_bounds={ab}")
-        r, alpha, search = _search(data, s, space_of, r, alpha, r_bounds, ab, grid, rcond, criterion)
-    coef = _solve(data, s, uu, r, alpha, rcond, space=space_of(r))
-    fitted = np.einsum("fi,cwij,cpj->cwfp", time_basis(s, alpha), coef, space_basis(uu, r))
-    rms = float(np.sqrt(np.mean((fitted - data) ** 2)))
+        r, alpha, search = _search(sides, s, r, alpha, r_bounds, ab, grid, rcond, criterion)
+    tside = time_side(s, alpha)
+    coef = solve(sides(r), tside, rcond)
+    ub = space_basis(data.u_rows, r)                                # (G, P, 8)
+    tc = np.einsum("fi,cwij->cfwj", tside.tb[0], coef)               # (C, F, 3, 8)
+    if data.shared:      # one product (C F 3, 8) @ (8, P)
+        resid = (tc.reshape(-1, 8) @ ub[0].T).reshape(data.x.shape)
+    else:
+        resid = tc @ np.swapaxes(ub, -1, -2)[:, None]                 # (C, F, 3, P)
+    resid -= data.x          # in place: a second large temporary costs more than the arithmetic
+    rms = float(np.sqrt(np.vdot(resid, resid) / resid.size))
     return PDEModel(coefficients=coef, r=float(r), alpha=float(alpha), u=uu, t0=float(t[0]),
                     t1=float(t[-1]), fit_times=t, rigid=rigid, parametrization=pname,
                     residual_rms=rms, search=search, reference=reference)

@@ -33,7 +33,8 @@ class RigidAlignment:
     Attributes
     ----------
     aligned : ndarray, shape (F, C, P, 3)
-        Curves with the rigid motion removed (frame 0 unchanged).
+        Curves with the rigid motion removed (frame 0 unchanged); a transposed view of a
+        (F, C, 3, P) array.
     rotations : ndarray, shape (F, C, 3, 3)
         ``R`` per frame and curve (``rotations[0]`` is the identity).
     anchors : ndarray, shape (F, C, 3)
@@ -45,12 +46,18 @@ class RigidAlignment:
     anchors: np.ndarray
 
 
+def _norm3(v: np.ndarray) -> np.ndarray:
+    """Euclidean norm over a last axis of length 3 (faster than ``np.linalg.norm`` there)."""
+    return np.sqrt(v[..., 0] ** 2 + v[..., 1] ** 2 + v[..., 2] ** 2)
+
+
 def kabsch(q: np.ndarray, p: np.ndarray, reg: float = 1e-6) -> np.ndarray:
     """Batched best rotation ``R`` minimising ``sum_k |R q_k - p_k|^2`` (closed form of Eq. 23).
 
     Parameters
     ----------
     q, p : ndarray, shape (..., P, 3)
+        Broadcast against each other.
     reg : float
         Tie-break towards the identity: maximises ``tr(R H) + lam tr(R)`` with
         ``lam = reg * sum_k |q_k| |p_k|``. For (nearly) straight curves the spin about the curve's
@@ -62,8 +69,20 @@ def kabsch(q: np.ndarray, p: np.ndarray, reg: float = 1e-6) -> np.ndarray:
     -------
     ndarray, shape (..., 3, 3), proper rotations (``det = +1``).
     """
-    h = np.einsum("...ki,...kj->...ij", q, p)
-    lam = reg * np.einsum("...k,...k->...", np.linalg.norm(q, axis=-1), np.linalg.norm(p, axis=-1))
+    return _kabsch_t(np.swapaxes(q, -1, -2), p, reg)
+
+
+def _kabsch_t(qt: np.ndarray, p: np.ndarray, reg: float, n_stack: int = 1) -> np.ndarray:
+    """:func:`kabsch` with ``q`` given transposed, ``qt`` (..., 3, P) (points along the last axis,
+    where the elementwise work is fastest), or (..., n_stack 3, P): ``n_stack`` q's against the
+    same ``p``, returned as (..., n_stack, 3, 3)."""
+    h = qt @ p                                                      # (..., n_stack 3, 3), q and p broadcast
+    if n_stack > 1:
+        qt = qt.reshape(qt.shape[:-2] + (n_stack, 3, qt.shape[-1]))
+        h = h.reshape(h.shape[:-2] + (n_stack, 3, 3))
+        p = p[..., None, :, :]
+    norm_q = np.sqrt(qt[..., 0, :] ** 2 + qt[..., 1, :] ** 2 + qt[..., 2, :] ** 2)
+    lam = reg * (norm_q * _norm3(p)).sum(axis=-1)
     h = h + lam[..., None, None] * np.eye(3)
     uu, _, vt = np.linalg.svd(h)
     d = np.sign(np.linalg.det(np.swapaxes(vt, -1, -2) @ np.swapaxes(uu, -1, -2)))
@@ -87,12 +106,18 @@ def remove_rigid(curves, reg: float = 1e-6) -> RigidAlignment:
     if x.ndim != 4 or x.shape[-1] != 3:
         raise InputError(f"curves must have shape (n_frames, n_curves, n_points, 3), got {x.shape}")
     anchors = x[:, :, 0, :]
-    q = x - anchors[:, :, None, :]
-    p = q[0]
-    rot = kabsch(q, np.broadcast_to(p, q.shape), reg)
-    rot[0] = np.eye(3)
-    aligned = anchors[0][None, :, None, :] + np.einsum("fcij,fcpj->fcpi", rot, q)
-    return RigidAlignment(aligned=aligned, rotations=rot, anchors=anchors)
+    # work on (C, F, 3, P): every elementwise step runs along the points, and the 3 x 3 products
+    # of a curve's frames with its frame 0 are one matrix product (F 3, P) @ (P, 3) per curve
+    qt = np.ascontiguousarray(x.transpose(1, 0, 3, 2))
+    qt -= anchors.transpose(1, 0, 2)[..., None]                      # relative to the first point
+    n_c, n_f, _, n_p = qt.shape
+    p = np.swapaxes(qt[:, 0], -1, -2)                                 # (C, P, 3)
+    rot = _kabsch_t(qt.reshape(n_c, n_f * 3, n_p), p, reg, n_f)      # (C, F, 3, 3)
+    rot[:, 0] = np.eye(3)
+    aligned = rot @ qt
+    aligned += anchors[0][:, None, :, None]                           # R q per point, (C, F, 3, P)
+    return RigidAlignment(aligned=aligned.transpose(1, 0, 3, 2), rotations=rot.transpose(1, 0, 2, 3),
+                          anchors=anchors)
 
 
 @dataclass(frozen=True, eq=False)
@@ -148,4 +173,4 @@ class RigidMotion:
         """
         rot, anchors = self.at(s)
         rel = aligned - self.pivot[None, :, None, :]
-        return anchors[:, :, None, :] + np.einsum("tcji,tcpj->tcpi", rot, rel)
+        return anchors[:, :, None, :] + rel @ rot                     # R^T rel per point

@@ -81,10 +81,18 @@ class SegmentedModel:
         pieces = pieces[None] if scalar else pieces                 # (nt, C*S, L, 3)
         nt, S, L = len(pieces), self.n_segments, self.index.shape[1]
         pieces = pieces.reshape(nt, self.n_curves, S, L, 3)
-        out = np.zeros((nt, self.n_curves, self.n_points, 3))
-        np.add.at(out, (slice(None), slice(None), self.index.ravel()), pieces.reshape(nt, self.n_curves, S * L, 3))
+        starts = self.index[:, 0]           # every piece is a run of consecutive points
+        out = np.empty((nt, self.n_curves, self.n_points, 3))
+        for k, s0 in enumerate(starts):     # a handful of pieces
+            out[:, :, s0:s0 + L] = pieces[:, :, k]
+        # points shared by several pieces (the joints, one or two each): the mean of all pieces
         count = np.bincount(self.index.ravel(), minlength=self.n_points)
-        out /= count[None, None, :, None]
+        joint = np.flatnonzero(count > 1)
+        acc = np.zeros((nt, self.n_curves, len(joint), 3))
+        for k, s0 in enumerate(starts):     # a handful of pieces
+            inside = (joint >= s0) & (joint < s0 + L)
+            acc[:, :, inside] += pieces[:, :, k, joint[inside] - s0]
+        out[:, :, joint] = acc / count[joint][:, None]
         return out[0] if scalar else out
 
 
@@ -97,5 +105,7 @@ def fit_segmented(curves, times, n_segments: int, **fit_options) -> SegmentedMod
         raise InputError(f"curves must have shape (F, C, P, 3), got {x.shape}")
     n_f, n_c, n_p, _ = x.shape
     idx = segment_index(n_p, int(n_segments))
-    pieces = x[:, :, idx].reshape(n_f, n_c * idx.shape[0], idx.shape[1], 3)
+    length = idx.shape[1]
+    pieces = np.stack([x[:, :, s0:s0 + length] for s0 in idx[:, 0]], axis=2)   # a handful of pieces
+    pieces = pieces.reshape(n_f, n_c * idx.shape[0], length, 3)
     return SegmentedModel(model=fit(pieces, times, **fit_options), index=idx, n_points=n_p)
