@@ -89,3 +89,18 @@ def test_bad_input_is_a_clean_error(tmp_path, capsys):
     assert "not found" in capsys.readouterr().err
     assert main(["precompute-modes", "builtin:chair", "-o", str(tmp_path / "c.npz"), "-r", "12",
                  "--fix", "z<-5"]) == 2
+
+
+def test_option_groups_from_the_command_line(tmp_path, capsys):
+    """--tolerance, --damping / --rayleigh and --eigensolver reach the mode file through the
+    option objects (AutoResolution, Damping, EigenOptions); --tolerance without auto is refused."""
+    out = tmp_path / "c.npz"
+    assert main(["precompute-modes", "builtin:beam", "-r", "auto", "--tolerance", "1e-9", "--modes", "2",
+                 "--fix", "x<min+1e-6", "--rayleigh", "0.5", "1e-4", "--eigensolver", "lobpcg", "-q",
+                 "-o", str(out)]) == 0
+    b = load_modes(out)
+    assert b.damping_spec == {"kind": "rayleigh", "alpha": 0.5, "beta": 1e-4}
+    assert b.eigen["method"] == "lobpcg"
+    assert b.resolution == 64                       # a 1e-9 tolerance never converges: the finest grid
+    assert main(["precompute-modes", "builtin:beam", "-r", "8", "--tolerance", "0.1", "-o", str(out)]) == 2
+    assert "--tolerance applies to --resolution auto only" in capsys.readouterr().err
