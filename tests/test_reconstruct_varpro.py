@@ -170,3 +170,32 @@ def test_segmented_evaluate_equals_per_point_average_of_pieces(n_points, n_segme
         owners = [(s, int(np.flatnonzero(m.index[s] == k)[0])) for s in range(n_segments) if k in m.index[s]]
         expect = np.mean([pieces[:, c, s, j] for s, j in owners], axis=0)
         np.testing.assert_allclose(out[:, c, k], expect, atol=1e-13)
+
+
+def test_spline_weights_equal_the_cubic_spline_of_the_values():
+    from scipy.interpolate import CubicSpline
+
+    from sc_fem.reconstruct.rigid import spline_weights
+
+    rng = np.random.default_rng(7)
+    knots, s = np.sort(rng.random(6)), np.linspace(-0.1, 1.1, 9)
+    y = rng.normal(size=(6, 4, 3))
+    w = spline_weights(knots, s)
+    for k in range(4):                                                 # one spline per column
+        np.testing.assert_allclose(w @ y[:, k], CubicSpline(knots, y[:, k], axis=0)(s), atol=1e-12)
+
+
+@pytest.mark.parametrize("shared", [True, False])
+def test_world_evaluate_equals_per_point_rigid_motion_loop(shared):
+    x, u, s = _data(n_curves=3, shared=shared, seed=8)
+    rot = Rotation.from_rotvec(np.outer(s, [0.3, -0.2, 0.5])).as_matrix()
+    x = np.einsum("fij,fcpj->fcpi", rot, x) + 0.1 * s[:, None, None, None]
+    m = R.fit(x, s, r=2.0, alpha=1.2, u=u)
+    t_new = np.array([0.05, 0.3, 0.62, 0.9])
+    out = m.evaluate(t_new)
+    aligned = m.evaluate_aligned(t_new)
+    rots, anchors = m.rigid.at(t_new)
+    for f, c in itertools.product(range(len(t_new)), range(3)):        # slow oracle loop
+        for p in range(x.shape[2]):
+            expect = anchors[f, c] + rots[f, c].T @ (aligned[f, c, p] - m.rigid.pivot[c])
+            np.testing.assert_allclose(out[f, c, p], expect, atol=1e-12)

@@ -136,6 +136,18 @@ class PDEModel:
             out = out + self.reference[None]
         return out[0] if t_arr.ndim == 0 else out
 
+    def _world_terms(self, s: np.ndarray):
+        """``(lhs, ub, rot)`` of the world-frame curves at normalised times ``s`` (nt,): the curves are
+        ``sum_j lhs[t, c, j] ub[j](u_cp)`` (:func:`_kron_space`) with ``lhs`` (nt, C, 9, 3) the
+        time-combined constants rotated by ``R(s)`` (row vectors: ``aligned @ R``) plus, as a 9-th
+        "space function" equal to 1, the translation ``anchor - pivot @ R``; ``ub`` (G, P, 8); ``rot``
+        (nt, C, 3, 3). Without ``reference`` (a per-point offset, added by the caller)."""
+        rot, anchors = self.rigid.at(s)                                         # (nt, C, 3, 3), (nt, C, 3)
+        lhs = np.empty(rot.shape[:2] + (9, 3))
+        np.matmul(np.einsum("ti,cwij->tcjw", time_basis(s, self.alpha), self.coefficients), rot, out=lhs[:, :, :8])
+        lhs[:, :, 8] = anchors - np.einsum("cv,tcvw->tcw", self.rigid.pivot, rot)
+        return lhs, space_basis(space_rows(self.u), self.r), rot
+
     def evaluate(self, t, normalized: bool = False) -> np.ndarray:
         """Curves at time(s) ``t`` (caller's units, or normalised if ``normalized``), world frame.
 
@@ -152,12 +164,27 @@ class PDEModel:
             raise InputError("t must be finite")
         # RigidMotion.to_world of the aligned curves, x = anchor + R^T (aligned - pivot) per point
         # (row vectors: aligned @ R), with R applied to the time-combined constants, not to every point
-        rot, anchors = self.rigid.at(s)                                         # (nt, C, 3, 3), (nt, C, 3)
-        out = _synthesize(time_basis(s, self.alpha), self.coefficients, space_basis(space_rows(self.u), self.r), rot)
-        out += (anchors[:, :, None, :] - self.rigid.pivot[None, :, None, :] @ rot)
+        lhs, ub, rot = self._world_terms(s)
+        if ub.shape[0] == 1:      # one matrix product (nt C, 27) @ (27, P 3) straight into (nt, C, P, 3)
+            out = (lhs.reshape(-1, 27) @ _kron_space(ub[0])).reshape(lhs.shape[:2] + (ub.shape[1], 3))
+        else:
+            out = ub @ lhs[:, :, :8]
+            out += lhs[:, :, 8, None, :]
         if self.reference is not None:
             out += self.reference[None] @ rot
         return out[0] if t_arr.ndim == 0 else out
+
+
+def _kron_space(ub: np.ndarray) -> np.ndarray:
+    """``K`` (27, P 3) with ``K[3 j + v, 3 p + w] = ub1[p, j] delta_vw`` for the space basis ``ub``
+    (P, 8) and ``ub1 = [ub, 1]``: ``(lhs (n, 9, 3) as (n, 27)) @ K`` is ``ub1 @ lhs`` laid out as
+    (n, P, 3), one matrix product writing the points in their final order."""
+    n_p = ub.shape[0]
+    k = np.zeros((9, 3, n_p, 3))
+    for w in range(3):                                     # the three coordinates
+        k[:8, w, :, w] = ub.T
+        k[8, w, :, w] = 1.0
+    return k.reshape(27, 3 * n_p)
 
 
 # ----------------------------------------------------------------------------- linear algebra

@@ -82,7 +82,12 @@ def _kabsch_t(qt: np.ndarray, p: np.ndarray, reg: float, n_stack: int = 1) -> np
         h = h.reshape(h.shape[:-2] + (n_stack, 3, 3))
         p = p[..., None, :, :]
     norm_q = np.sqrt(qt[..., 0, :] ** 2 + qt[..., 1, :] ** 2 + qt[..., 2, :] ** 2)
-    lam = reg * (norm_q * _norm3(p)).sum(axis=-1)
+    return _kabsch_h(h, reg * (norm_q * _norm3(p)).sum(axis=-1))
+
+
+def _kabsch_h(h: np.ndarray, lam: np.ndarray) -> np.ndarray:
+    """Rotations (..., 3, 3) maximising ``tr(R H) + lam tr(R)`` for cross-covariances ``h``
+    (..., 3, 3) and tie-breaks ``lam`` (...): one batched SVD, reflection guard."""
     h = h + lam[..., None, None] * np.eye(3)
     uu, _, vt = np.linalg.svd(h)
     d = np.sign(np.linalg.det(np.swapaxes(vt, -1, -2) @ np.swapaxes(uu, -1, -2)))
@@ -106,18 +111,33 @@ def remove_rigid(curves, reg: float = 1e-6) -> RigidAlignment:
     if x.ndim != 4 or x.shape[-1] != 3:
         raise InputError(f"curves must have shape (n_frames, n_curves, n_points, 3), got {x.shape}")
     anchors = x[:, :, 0, :]
-    # work on (C, F, 3, P): every elementwise step runs along the points, and the 3 x 3 products
-    # of a curve's frames with its frame 0 are one matrix product (F 3, P) @ (P, 3) per curve
-    qt = np.ascontiguousarray(x.transpose(1, 0, 3, 2))
-    qt -= anchors.transpose(1, 0, 2)[..., None]                      # relative to the first point
-    n_c, n_f, _, n_p = qt.shape
-    p = np.swapaxes(qt[:, 0], -1, -2)                                 # (C, P, 3)
-    rot = _kabsch_t(qt.reshape(n_c, n_f * 3, n_p), p, reg, n_f)      # (C, F, 3, 3)
-    rot[:, 0] = np.eye(3)
-    aligned = rot @ qt
-    aligned += anchors[0][:, None, :, None]                           # R q per point, (C, F, 3, P)
-    return RigidAlignment(aligned=aligned.transpose(1, 0, 3, 2), rotations=rot.transpose(1, 0, 2, 3),
+    n_f, n_c, n_p, _ = x.shape
+    # work on (C, F, 4, P): every elementwise step runs along the points, the 3 x 3 products of a
+    # curve's frames with its frame 0 are one matrix product per curve, and with a 4-th row of
+    # ones the alignment R q + pivot of a frame is one (3, 4) @ (4, P) product
+    q = np.empty((n_c, n_f, 4, n_p))
+    q[:, :, :3] = x.transpose(1, 0, 3, 2)
+    q[:, :, :3] -= anchors.transpose(1, 0, 2)[..., None]             # relative to the first point
+    q[:, :, 3] = 1.0
+    p = np.swapaxes(q[:, 0, :3], -1, -2)                              # (C, P, 3), frame 0
+    rot = np.empty((n_c, n_f, 3, 4))
+    rot[:, 0, :, :3] = np.eye(3)                                      # frame 0: the identity
+    if n_f > 1:
+        moving = q[:, 1:]
+        h = (moving.reshape(n_c, -1, n_p) @ p).reshape(n_c, n_f - 1, 4, 3)[:, :, :3]
+        norm_q = np.sqrt(np.einsum("cfwp,cfwp->cfp", moving[:, :, :3], moving[:, :, :3]))
+        lam = reg * (norm_q @ _norm3(p)[:, :, None])[..., 0]           # (C, F - 1)
+        rot[:, 1:, :, :3] = _kabsch_h(h, lam)
+    rot[:, :, :, 3] = anchors[0][:, None, :]                          # + pivot, via the row of ones
+    aligned = rot @ q                                                 # (C, F, 3, P)
+    return RigidAlignment(aligned=aligned.transpose(1, 0, 3, 2), rotations=rot[..., :3].transpose(1, 0, 2, 3),
                           anchors=anchors)
+
+
+def spline_weights(knots: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """``W`` (len(s), len(knots)) with ``CubicSpline(knots, y)(s) = W @ y`` for any knot values
+    ``y`` (not-a-knot end conditions, the default): the spline of the identity."""
+    return CubicSpline(knots, np.eye(len(knots)), axis=0)(s)
 
 
 @dataclass(frozen=True, eq=False)
@@ -149,10 +169,11 @@ class RigidMotion:
         s = np.atleast_1d(np.asarray(s, dtype=float))
         kt, n_c = self.key_times, self.rotations.shape[1]
         cubic = self.interpolation == "cubic" and len(kt) >= 3
-        if cubic:
-            anchors = CubicSpline(kt, self.anchors, axis=0)(s)
-            rv = Rotation.from_matrix(self.rotations.reshape(-1, 3, 3)).as_rotvec().reshape(len(kt), n_c, 3)
-            rot = Rotation.from_rotvec(CubicSpline(kt, rv, axis=0)(s).reshape(-1, 3)).as_matrix()
+        if cubic:       # the spline is linear in the knot values: one weight matrix (nt, F) for both
+            w = spline_weights(kt, s)
+            anchors = (w @ self.anchors.reshape(len(kt), -1)).reshape(len(s), n_c, 3)
+            rv = Rotation.from_matrix(self.rotations.reshape(-1, 3, 3)).as_rotvec().reshape(len(kt), -1)
+            rot = Rotation.from_rotvec((w @ rv).reshape(-1, 3)).as_matrix()
             return rot.reshape(len(s), n_c, 3, 3), anchors
         anchors = make_interp_spline(kt, self.anchors, k=1, axis=0)(s)
         i = np.clip(np.searchsorted(kt, s, side="right") - 1, 0, len(kt) - 2)
