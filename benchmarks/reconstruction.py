@@ -116,6 +116,17 @@ def main(argv=None) -> int:
     except Exception as exc:  # noqa: BLE001 - report honestly when the doubled substep blows up
         how = f"the even-frames run with a doubled substep FAILED ({type(exc).__name__}: {exc}); estimate 6/11"
         runs_even = [tuple(v * 6 / 11 for v in run) for run in runs_all]
+    # the same runs with the other XPBD sweep (numpy; the default is the compiled one when numba is
+    # installed): a faster simulator leaves less time for the fit in the split
+    from sc_fem.dynamics import xpbd_jit
+
+    kernels = {"compiled" if xpbd_jit.available() else "numpy": (runs_all, runs_even)}
+    if xpbd_jit.available():
+        np_all, np_even = [], []
+        for _ in range(args.repeat):
+            np_all.append(timed_scene(rope_scene, 11, fps=args.fps, substeps=subs, kernel="numpy")[1:])
+            np_even.append(timed_scene(rope_scene, 6, fps=args.fps / 2, substeps=subs, kernel="numpy")[1:])
+        kernels["numpy"] = (np_all, np_even)
 
     grid = (8, 8) if args.quick else (14, 14)
     results = {}     # fits and curves at all 11 frames for the tables (timed below, in time_split)
@@ -178,7 +189,7 @@ def main(argv=None) -> int:
           f"(adds {e_lin.E_A[odd].mean() - e_or.E_A[odd].mean():+.6f})")
 
     # --- timings
-    time_split(runs_all, runs_even, curves, times, grid, model, two, args.repeat * 3)
+    time_split(kernels, curves, times, grid, model, two, args.repeat * 3)
     print(f"  [{how}]")
     ps = PAPER_SUMMARY
     paper_pde = (ps["xpbd_even_s"] + ps["pde_fit_s"]) / ps["xpbd_all_s"]
@@ -234,8 +245,9 @@ def cpu_time(fn, repeat: int):
     return cpu, wall
 
 
-def time_split(runs_all, runs_even, curves, times, grid, model, two, repeat):
-    """Print the timings and the paper's time split.
+def time_split(kernels, curves, times, grid, model, two, repeat):
+    """Print the timings and the paper's time split, for each XPBD sweep (``kernels``: name ->
+    (runs on all frames, runs on the even frames)).
 
     Numerator: XPBD stepping for the even frames (doubled substep) + fitting the even frames and
     generating the 5 skipped ones (the paper's 0.293 s covers exactly this). Denominator: XPBD
@@ -257,21 +269,28 @@ def time_split(runs_all, runs_even, curves, times, grid, model, two, repeat):
         "B-spline (50 ctrl) + linear interp.": lambda: rec.bspline_baseline(
             curves, times, FIT, n_control=50).evaluate(t_odd)}
     t_fit = {name: cpu_time(fn, repeat) for name, fn in fits.items()}
-    c_all, c_even = min(v[2] for v in runs_all), min(v[2] for v in runs_even)
-    setup = min(v[3] for v in runs_all + runs_even)
-    print(f"\ntimings (process CPU s [wall s]; fastest of {len(runs_all)} interleaved XPBD runs of each kind and "
+    c = {k: (min(v[2] for v in a), min(v[2] for v in e)) for k, (a, e) in kernels.items()}
+    setup = min(v[3] for a, e in kernels.values() for v in a + e)
+    n_runs = len(next(iter(kernels.values()))[0])
+    print(f"\ntimings (process CPU s [wall s]; fastest of {n_runs} interleaved XPBD runs of each kind and "
           f"of {repeat} fits; BLAS threads: {os.environ.get('OPENBLAS_NUM_THREADS', 'default')})")
-    for label, runs, c, paper in (("all 11 frames", runs_all, c_all, 7.442), ("even frames only", runs_even, c_even, 4.085)):
-        print(f"  XPBD stepping, {label:<21} {c:8.4f}   (each run: "
-              f"{', '.join(f'{v[2]:.3f} [{v[1]:.3f}]' for v in runs)}; paper {paper})")
+    for k, (runs_all, runs_even) in kernels.items():
+        for label, runs, ck, paper in (("all 11 frames", runs_all, c[k][0], 7.442),
+                                       ("even frames only", runs_even, c[k][1], 4.085)):
+            print(f"  XPBD ({k} sweep) stepping, {label:<17} {ck:8.4f}   (each run: "
+                  f"{', '.join(f'{v[2]:.3f} [{v[1]:.3f}]' for v in runs)}; paper {paper})")
     print(f"  set-up per run (voxelize + embed)    {setup:8.4f}   (the same in both runs)")
     for name, (tc, tw) in t_fit.items():
         print(f"  fit + 5 skipped frames: {name:<36} {tc:8.4f} [{tw:.4f}]")
-    print("time split (XPBD even + fit) / XPBD all, stepping only   {with the set-up in both}   (paper 58.83 %)")
-    for name, (tc, _) in t_fit.items():
-        print(f"  {name:<36} {(c_even + tc) / c_all:8.2%}   {{{(setup + c_even + tc) / (setup + c_all):7.2%}}}")
-    print(f"  {'XPBD alone (no fit)':<36} {c_even / c_all:8.2%}   {{{(setup + c_even) / (setup + c_all):7.2%}}}")
-    print(f"  fit CPU budget for a 55 % split (stepping only): {(0.55 * c_all - c_even) * 1e3:.1f} ms")
+    print("time split (XPBD even + fit) / XPBD all, stepping only, per XPBD sweep   {with the set-up in both} "
+          "(paper 58.83 %)")
+    print(f"  {'':<36} " + " ".join(f"{k + ' sweep':>24}" for k in kernels))
+    rows = [(name, tc) for name, (tc, _) in t_fit.items()] + [("XPBD alone (no fit)", 0.0)]
+    for name, tc in rows:
+        cells = [f"{(ce + tc) / ca:8.2%} {{{(setup + ce + tc) / (setup + ca):7.2%}}}" for ca, ce in c.values()]
+        print(f"  {name:<36} " + " ".join(f"{cell:>24}" for cell in cells))
+    print("  fit CPU budget for a 55 % split (stepping only): "
+          + ", ".join(f"{(0.55 * ca - ce) * 1e3:.1f} ms ({k})" for k, (ca, ce) in c.items()))
 
 
 def plot(curves, pde, bsc, e_pde, e_bs) -> None:

@@ -77,7 +77,7 @@ def rope_curve_points(mesh, n_curves: int = 24, n_points: int = 832) -> np.ndarr
 def rope_scene(n_frames: int = 201, fps: float = 60.0, resolution: int = 40, substeps: int = 60,
                iterations: int = 1, youngs: float | None = None, mesh=None, constraints: str = "neohookean",
                n_curves: int = 24, n_points: int = 832, damping: float = 0.0,
-               progress: bool = False) -> RopeScene:
+               progress: bool = False, kernel: str = "auto") -> RopeScene:
     """Simulate the cube-rope scene with XPBD.
 
     Parameters
@@ -95,7 +95,7 @@ def rope_scene(n_frames: int = 201, fps: float = 60.0, resolution: int = 40, sub
         1 MPa; its Poisson's ratio and density are always used).
     mesh : trimesh.Trimesh, optional
         Rope mesh along x (default ``sc_fem.models.load("rope")``).
-    constraints, damping : see :class:`~sc_fem.dynamics.xpbd.XPBDSolver`.
+    constraints, damping, kernel : see :class:`~sc_fem.dynamics.xpbd.XPBDSolver`.
     """
     from ..lattice.embed import embed
     from ..lattice.voxelize import voxelize
@@ -117,7 +117,7 @@ def rope_scene(n_frames: int = 201, fps: float = 60.0, resolution: int = 40, sub
     t1, c1 = _time.perf_counter(), _time.process_time()
     fixed = np.flatnonzero(model.node_index[:, 0] == model.node_index[:, 0].min())
     solver = XPBDSolver(model, 1.0 / fps, substeps=substeps, iterations=iterations, constraints=constraints,
-                        fixed_nodes=fixed, damping=damping)
+                        fixed_nodes=fixed, damping=damping, kernel=kernel)
     rest = model.nodes_m
     out = np.empty((n_frames, len(pts), 3))
     nodes = np.empty((n_frames, model.n_nodes, 3))
