@@ -25,6 +25,7 @@ from ..errors import InputError, InstabilityError
 from ..lattice.cubes import CubeModel
 from .base import Energy
 from .corotational import DN_CENTRE, centre_F, polar_rotation
+from .xpbd_jit import choose_kernel
 from .xpbd_kernels import (L_REF, MATCHING_KIND, MATCHINGS, S_REF, _as_fixed, _scatter_add, _volume_terms, corotational_terms, cube_colors,
                            neohookean_terms)
 
@@ -129,7 +130,7 @@ class XPBDSolver:
         self.last_energy_growth = 0.0
         """Energy growth (see :meth:`energy_growth`) after the last :meth:`step`."""
         self.h = model.h
-        self.kernel = _choose_kernel(kernel, constraints == "neohookean" and self.gauss_seidel)
+        self.kernel = choose_kernel(kernel, constraints == "neohookean" and self.gauss_seidel)
         """The sweep that runs: ``"numba"`` or ``"numpy"``."""
         self._build()
         e0 = self.energy()
@@ -493,22 +494,6 @@ class XPBDSolver:
         kin = 0.5 * float(np.sum(self.mass[:, None] * v * v))
         grav = -float(np.sum(self.mass * ((x - self.rest) @ self.gravity)))
         return XPBDEnergy(kinetic=kin, gravity=grav, elastic=self.elastic_energy(x))
-
-
-def _choose_kernel(kernel: str, applicable: bool) -> str:
-    """``"numba"`` or ``"numpy"`` for the requested ``kernel`` (see :class:`XPBDSolver`)."""
-    from . import xpbd_jit
-
-    if kernel not in ("auto", "numba", "numpy"):
-        raise InputError(f"kernel must be 'auto', 'numba' or 'numpy', got {kernel!r}")
-    if kernel == "numba":
-        if not xpbd_jit.available():
-            raise InputError("kernel='numba' needs numba (pip install 'sc_fem[fast]'); kernel='numpy' runs without it")
-        if not applicable:
-            raise InputError("the compiled kernel covers the Neo-Hookean Gauss-Seidel sweep only "
-                             "(constraints='neohookean', gauss_seidel=True)")
-        return "numba"
-    return "numba" if kernel == "auto" and applicable and xpbd_jit.available() else "numpy"
 
 
 def simulate_xpbd(model: CubeModel, dt: float, n_steps: int, *, substeps: int = 10, iterations: int = 1,

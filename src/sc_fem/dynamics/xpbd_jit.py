@@ -25,6 +25,22 @@ def available() -> bool:
     return numba is not None
 
 
+def choose_kernel(kernel: str, applicable: bool) -> str:
+    """``"numba"`` or ``"numpy"`` for the requested ``kernel`` (see :class:`~sc_fem.dynamics.xpbd.XPBDSolver`)."""
+    from ..errors import InputError
+
+    if kernel not in ("auto", "numba", "numpy"):
+        raise InputError(f"kernel must be 'auto', 'numba' or 'numpy', got {kernel!r}")
+    if kernel == "numba":
+        if not available():
+            raise InputError("kernel='numba' needs numba (pip install 'sc_fem[fast]'); kernel='numpy' runs without it")
+        if not applicable:
+            raise InputError("the compiled kernel covers the Neo-Hookean Gauss-Seidel sweep only "
+                             "(constraints='neohookean', gauss_seidel=True)")
+        return "numba"
+    return "numba" if kernel == "auto" and applicable and available() else "numpy"
+
+
 def _nh_sweep_py(x, hexes, order, w, lamD, lamH, aD, aH, gamma, L, DN, h):  # pragma: no cover - compiled
     """One Gauss-Seidel pass over the cubes ``order`` (colour by colour), in place.
 
