@@ -9,11 +9,17 @@ Two paths:
 ``method="fast"`` (default)
     Every cube's matrix is a scaled copy of unit-cube reference matrices
     (:mod:`sc_fem.fem.elements`), scattered into a CSR sparsity pattern that :class:`Assembler`
-    builds **once** from the lattice structure (no sort of the element entries). Re-assembly
-    with new per-cube materials or per-cube (e.g. rotated) element matrices only refills
-    ``data``. Fixed DOFs are dropped while the pattern is built, so no slicing afterwards.
-    The consistent ``M`` shares ``K``'s ``indptr``/``indices`` (so ``K - sigma M`` is a
-    ``data`` operation).
+    builds **once** from the lattice structure: row ``(i, c)`` holds the free DOFs of the nodes
+    of node ``i``'s 27-node stencil that share a cube with it, so ``indptr``/``indices`` are
+    written directly (node chunk by node chunk, no COO pass, no sort). Re-assembly with new
+    per-cube materials or per-cube (e.g. rotated) element matrices only refills ``data``,
+    chunk by chunk of cubes: the CSR position of each element entry is computed on the fly from
+    small per-node tables (row starts, the offset of each of the 27 neighbour blocks in a row),
+    so no per-entry slot map is stored (it would take 2.3 KB per cube) unless asked for
+    (``cache_slots``). Fixed DOFs are dropped while the pattern is built, so no slicing
+    afterwards. The consistent ``M`` shares ``K``'s ``indptr``/``indices`` (so ``K - sigma M``
+    is a ``data`` operation). Memory is the output's: ``indices`` (4 bytes per nonzero) once
+    and ``data`` (8 bytes per nonzero) per matrix, plus about 50 bytes per node.
 ``method="skfem"``
     The reference: scikit-fem ``MeshHex`` + ``ElementVector(ElementHex1())`` with per-element
     Lame parameters from :mod:`skfem.models.elasticity` (2x2x2 Gauss). Supports ``"q1"`` and
@@ -32,11 +38,23 @@ from ..errors import InputError
 from ..lattice.cubes import HEX_CORNERS, CubeModel
 
 _CHUNK = 2048
-"""Cubes per scatter chunk (keeps the (chunk, 576) value block in cache)."""
+"""Cubes per scatter chunk (keeps the (chunk, 576) value and slot blocks in cache)."""
+
+_AUTO_CACHE_BYTES = 2**28
+"""``cache_slots=None`` keeps the slots of re-fills up to this size (256 MiB, ~116,000 cubes)."""
+
+_NODE_CHUNK = 8192
+"""Nodes per chunk while the column indices are written."""
 
 # offset id (0..26) of corner b seen from corner a, shape (8, 8)
 _PAIR_OFFSET = np.ravel_multi_index((HEX_CORNERS[None, :, :] - HEX_CORNERS[:, None, :] + 1).transpose(2, 0, 1),
                                     (3, 3, 3))
+_D_PATTERN = np.tile(np.arange(3, dtype=np.int32), 192)
+"""Column component d of each of a cube's 576 entries (a, c, b, d)."""
+_INTERIOR = (81 * np.arange(3)[None, :, None, None] + 3 * _PAIR_OFFSET[:, None, :, None]
+             + np.arange(3)[None, None, None, :]).reshape(8, 72).astype(np.int32)
+"""Position of entry (a, c, b, d) relative to the start of row (node a, 0) when node a's rows hold
+all 27 neighbours with 3 free DOFs each (81 columns; block o at column 3 o)."""
 
 
 def _check_fixed(fixed_dofs, n_dofs: int) -> np.ndarray:
@@ -66,6 +84,12 @@ class Assembler:
     fixed_dofs : array_like of int or bool mask (3m,), optional
         DOFs removed from the matrices (homogeneous Dirichlet condition). The returned
         matrices act on the free DOFs :attr:`free_dofs` only.
+    cache_slots : bool or None
+        Keep the CSR position of every element entry after a fill (4 bytes per entry, 2.3 KB per
+        cube), so later fills skip computing them (about 20-30 % of a fill). ``True``: after the
+        first fill; ``False``: never; ``None`` (default): after the first re-fill from
+        ``element_matrices`` (the repeated path, e.g. every step of a corotational integrator)
+        when the positions take at most 256 MiB (about 116,000 cubes).
 
     Attributes
     ----------
@@ -76,10 +100,20 @@ class Assembler:
     shape : tuple
         ``(n_free, n_free)``.
     indptr, indices : ndarray of int32
-        The CSR pattern shared by every matrix this assembler returns.
+        The CSR pattern shared by every matrix this assembler returns (int64 beyond 2**31 - 1
+        nonzeros).
+    nnz : int
+        Number of stored entries.
+
+    Notes
+    -----
+    Node numbers must increase with the nodes' lattice linear index (as
+    :class:`~sc_fem.lattice.cubes.CubeModel` numbers them), so that the 27 stencil offsets in
+    order are the columns in increasing order.
     """
 
-    def __init__(self, model: CubeModel, element: str = DEFAULT_ELEMENT, *, fixed_dofs=None) -> None:
+    def __init__(self, model: CubeModel, element: str = DEFAULT_ELEMENT, *, fixed_dofs=None,
+                 cache_slots: bool | None = None) -> None:
         if not isinstance(model, CubeModel):
             raise InputError(f"model must be a CubeModel, got {type(model).__name__}")
         self.model = model
@@ -90,89 +124,125 @@ class Assembler:
         free[self.fixed_dofs] = False
         self.free_dofs = np.flatnonzero(free)
         self._build(free)
+        if cache_slots is None:
+            cache_slots = None if 2304 * model.n_cubes <= _AUTO_CACHE_BYTES else False
+        self._cache_all = bool(cache_slots)          # True: every fill; None: re-fills only
+        self._cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray | None]] | None = (
+            None if cache_slots is False else {})
 
     # ------------------------------------------------------------------ pattern
     def _build(self, free: np.ndarray) -> None:
+        """CSR pattern from the 27-node stencil of the lattice, and the small per-node tables
+        :meth:`_slots` computes every chunk's CSR positions from (no per-entry slot map)."""
         model = self.model
         hexes = model.hexes
         m = model.n_nodes
-        # node blocks: node i couples with its lattice neighbour at offset o (27 offsets);
-        # node numbers increase with the lattice linear index, so offset order = column order.
-        present = np.zeros((m, 27), dtype=bool)
-        present[hexes[:, :, None], _PAIR_OFFSET[None]] = True
-        bid = np.cumsum(present.ravel()).reshape(m, 27) - 1            # block id, CSR order
-        nnzb = int(present.sum())
-        jb = np.empty(nnzb, dtype=np.int64)                           # column node of each block
-        jb[bid[hexes[:, :, None], _PAIR_OFFSET[None]]] = np.broadcast_to(hexes[:, None, :], (len(hexes), 8, 8))
-        blocks_per_row = present.sum(axis=1)
-        ib = np.repeat(np.arange(m), blocks_per_row)                  # row node of each block
-
         free3 = free.reshape(m, 3)
-        nfree = free3.sum(axis=1)                                     # free DOFs per node
-        dloc = np.where(free3, np.cumsum(free3, axis=1) - 1, -1)      # rank of d among free DOFs
-        width = nfree[jb]                                             # free columns per block
-        cw = np.cumsum(width)
-        row_first = np.concatenate([[0], np.cumsum(blocks_per_row)])[:-1]
-        row_len = np.add.reduceat(width, row_first) if nnzb else np.zeros(m, dtype=np.int64)
-        row_len = np.where(blocks_per_row > 0, row_len, 0)
-        coloff = cw - width - (cw - width)[row_first][ib]              # offset of block within row
-        red = np.cumsum(free) - 1                                     # reduced index of each DOF
-        lengths = np.repeat(row_len, 3)[free]
-        indptr = np.concatenate([[0], np.cumsum(lengths)])
-        nnz = int(indptr[-1])
-        rowstart = np.full(3 * m, -1, dtype=np.int64)
-        rowstart[free] = indptr[:-1]
-        self.nnz = nnz
-        itype = np.int32 if max(nnz, 3 * m) < 2**31 - 1 else np.int64
-
-        # column indices, block by block: (nnzb, 3 rows c, 3 cols d)
-        pos_b = (rowstart.reshape(m, 3)[ib][:, :, None] + coloff[:, None, None]
-                 + dloc[jb][:, None, :]).ravel()
-        col_b = np.repeat(red.reshape(m, 3)[jb].astype(itype), 3, axis=0).ravel()
-        indices = np.empty(nnz, dtype=itype)
-        if free.all():
-            indices[pos_b] = col_b
-        else:
-            ok = np.flatnonzero((free3[ib][:, :, None] & free3[jb][:, None, :]).ravel())
-            indices[pos_b[ok]] = col_b[ok]
-        self.indptr = indptr.astype(itype)
-        self.indices = indices
+        nfree = free3.sum(axis=1).astype(np.uint8)                    # free DOFs per node
         n_free = int(free.sum())
-        self.shape = (n_free, n_free)
+        # nbr[i, o]: the node at lattice offset o (0..26) of node i if a cube holds both, else -1.
+        # Node numbers increase with the lattice linear index, so offset order = column order.
+        nt = np.int32 if m < 2**31 - 1 else np.int64
+        nbr = np.full((m, 27), -1, dtype=nt)
+        hx = hexes.astype(nt)
+        for a in range(8):                                            # the 8 corners of a cube
+            nbr[hexes[:, a, None], _PAIR_OFFSET[a]] = hx
+        present = nbr >= 0
+        width = np.where(present, nfree[nbr], np.uint8(0))            # free columns per node block
+        coloff = np.cumsum(width, axis=1, dtype=np.uint8)             # <= 81 columns per row
+        row_len = coloff[:, -1].astype(np.int64)
+        coloff -= width                                               # offset of block o within its row
+        del width
+        lengths = np.repeat(row_len, 3)[free]
+        nnz = int(lengths.sum())
+        itype = np.int32 if max(nnz, n_free) < 2**31 - 1 else np.int64
+        indptr = np.zeros(n_free + 1, dtype=itype)
+        np.cumsum(lengths, dtype=itype, out=indptr[1:])
+        del lengths
+        rowstart = np.zeros(3 * m, dtype=itype)
+        rowstart[free] = indptr[:-1]
+        # per node, padded to 4 (a 4-byte gather) with a last all-fixed row that nbr = -1 selects:
+        # which DOFs are free, and their reduced indices
+        free4 = np.zeros((m + 1, 4), dtype=bool)
+        free4[:m, :3] = free3
+        red4 = np.zeros((m + 1, 4), dtype=itype)
+        red4[:m, :3] = (np.cumsum(free, dtype=itype) - 1).reshape(m, 3)
+        free4 = free4.view(np.uint32).ravel()
 
-        # per-cube slot map: CSR position of each of the 576 entries, relative to the chunk's
-        # lowest slot (chunks of consecutive cubes touch a contiguous range of rows); entries on
-        # fixed DOFs go to a dummy slot one past the chunk's range.
-        self._chunks: list[tuple[int, int, int, int, np.ndarray]] = []
-        rs3 = rowstart.reshape(m, 3)
-        row_end = np.full(3 * m, -1, dtype=np.int64)
-        row_end[free] = indptr[1:]
-        re3 = row_end.reshape(m, 3)
-        all_free = bool(free.all())
-        for s in range(0, len(hexes), _CHUNK):                        # loop over chunks
-            hx = hexes[s:s + _CHUNK]
-            nodes = np.unique(hx)
-            fr = free3[nodes]
-            if fr.any():   # the chunk's rows form a contiguous CSR range
-                lo, hi = int(rs3[nodes][fr].min()), int(re3[nodes][fr].max())
-            else:
-                lo, hi = 0, 0
-            span = hi - lo
-            it = np.int32 if span < 2**31 - 2 else np.int64
-            kb = bid[hx[:, :, None], _PAIR_OFFSET[None]]              # (c, 8, 8)
-            rel = ((rs3[hx] - lo).astype(it)[:, :, :, None, None] + coloff[kb].astype(it)[:, :, None, :, None]
-                   + dloc[hx].astype(it)[:, None, None, :, :])         # (c, 8a, 3c, 8b, 3d)
-            if not all_free:
-                valid = free3[hx][:, :, :, None, None] & free3[hx][:, None, None, :, :]
-                rel[~valid] = span
-            self._chunks.append((s, s + len(hx), lo, span, rel.reshape(len(hx), 576)))
+        # column indices, written in place node chunk by node chunk: rows (i, c), blocks o, columns d
+        indices = np.empty(nnz, dtype=itype)
+        pos = 0
+        for r0 in range(0, m, _NODE_CHUNK):                           # loop over chunks
+            nb = nbr[r0:r0 + _NODE_CHUNK]
+            k = len(nb)
+            mask = free4[nb].view(bool).reshape(k, 1, 108) & free3[r0:r0 + k, :, None]   # (k, 3c, 27o 4d)
+            seg = np.broadcast_to(red4[nb].reshape(k, 1, 108), (k, 3, 108))[mask]
+            indices[pos:pos + len(seg)] = seg
+            pos += len(seg)
+        assert pos == nnz
+        self.indptr, self.indices, self.nnz = indptr, indices, nnz
+        self.shape = (n_free, n_free)
+        # per-node tables for the slots: row starts (3, m), block offsets (m, 27), column rank of
+        # each DOF among its node's free DOFs (only needed when a node is partly fixed)
+        self._rowstart = np.ascontiguousarray(rowstart.reshape(m, 3).T)
+        self._coloff = coloff.ravel()
+        self._free3 = free3
+        self._all_free = n_free == 3 * m
+        full = (row_len == 81) & (nfree == 3)          # free node whose 27 neighbours are all free
+        self._interior = full[hexes].all(axis=1)        # cubes whose slots follow _INTERIOR
+        partial = bool(np.any((nfree > 0) & (nfree < 3)))
+        self._dloc = (np.where(free3, np.cumsum(free3, axis=1) - 1, 0).astype(itype).reshape(m, 1, 1, 3)
+                      if partial else None)
+
+    def _slots(self, s: int, e: int) -> tuple[np.ndarray, np.ndarray | None]:
+        """CSR positions (e - s, 576) of the element entries of cubes ``s:e``, and the mask of the
+        entries on free DOFs (``None`` when all are); computed from the lattice tables."""
+        hx = self.model.hexes[s:e]
+        c = len(hx)
+        # interior cubes (every node with its full 81-column rows): row start + a fixed template
+        slot = (self._rowstart[0][hx][:, :, None] + _INTERIOR).reshape(c, 576)
+        other = np.flatnonzero(~self._interior[s:e])
+        if len(other):
+            slot[other] = self._general_slots(hx[other])
+        if self._all_free:
+            return slot, None
+        f = self._free3[hx].reshape(c, 24)
+        if f.all():
+            return slot, None
+        return slot, (f[:, :, None] & f[:, None, :]).reshape(c, 576)
+
+    def _general_slots(self, hx: np.ndarray) -> np.ndarray:
+        """CSR positions (c, 576) of the entries of cubes with nodes ``hx`` (c, 8), any stencil;
+        entries on fixed DOFs get arbitrary in-range positions (the caller masks them)."""
+        c = len(hx)
+        co = np.take(self._coloff, (27 * hx)[:, :, None] + _PAIR_OFFSET)   # (c, 8a, 8b)
+        base = np.empty((c, 8, 3, 8), dtype=self.indices.dtype)      # (c, 8a, 3 rows, 8b)
+        for k in range(3):                                            # the 3 row components
+            np.add(self._rowstart[k][hx][:, :, None], co, out=base[:, :, k, :])
+        slot = np.repeat(base.reshape(c, 192), 3, axis=1)             # (c, 8a 3c 8b 3d)
+        if self._dloc is None:                                        # column d of a free node: + d
+            slot += _D_PATTERN
+        else:
+            slot.reshape(c, 8, 3, 24)[...] += self._dloc[hx].reshape(c, 1, 1, 24)
+        return slot
 
     # ------------------------------------------------------------------ assembly
-    def _scatter(self, values_of_chunk) -> sp.csr_matrix:
+    def _scatter(self, values_of_chunk, refill: bool = False) -> sp.csr_matrix:
+        """Sum the element entries of every chunk of cubes into a new ``data`` array, in place."""
         data = np.zeros(self.nnz)
-        for s, e, lo, span, rel in self._chunks:                     # loop over chunks
-            vals = values_of_chunk(s, e)
-            data[lo:lo + span] += np.bincount(rel.ravel(), weights=vals.ravel(), minlength=span + 1)[:span]
+        n = self.model.n_cubes
+        store = self._cache is not None and (self._cache_all or refill)
+        for s in range(0, n, _CHUNK):                                 # loop over chunks
+            e = min(s + _CHUNK, n)
+            got = None if self._cache is None else self._cache.get((s, e))
+            if got is None:
+                slot, keep = self._slots(s, e)
+                got = (slot.ravel(), None) if keep is None else (slot[keep], keep)
+                if store:
+                    self._cache[(s, e)] = got
+            slot, keep = got
+            vals = np.asarray(values_of_chunk(s, e)).reshape(e - s, 576)
+            np.add.at(data, slot, vals.ravel() if keep is None else vals[keep])
         return sp.csr_matrix((data, self.indices, self.indptr), shape=self.shape, copy=False)
 
     def stiffness(self, youngs=None, poisson=None, element_matrices=None) -> sp.csr_matrix:
@@ -199,7 +269,7 @@ class Assembler:
             if km.shape != (n, 24, 24):
                 raise InputError(f"element_matrices must have shape ({n}, 24, 24), got {km.shape}")
             flat = km.reshape(n, 576)
-            return self._scatter(lambda s, e: flat[s:e])
+            return self._scatter(lambda s, e: flat[s:e], refill=True)
         from .material import lame
 
         h = self.model.h
