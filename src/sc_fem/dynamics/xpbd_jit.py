@@ -2,7 +2,7 @@
 
 The numpy sweep (:meth:`sc_fem.dynamics.xpbd.XPBDSolver._project_nh`) handles one colour of
 cubes per call -- ~25 array operations on a few hundred cubes, so on lattices of a few thousand
-cubes its time goes to numpy's per-call overhead, not to arithmetic (98 ms a frame against 22 ms compiled on the
+cubes its time goes to numpy's per-call overhead, not to arithmetic (64 ms a frame against 18 ms compiled on the
 benchmark bar, ``benchmarks/xpbd.py``). This kernel does the same arithmetic cube after cube in
 the same colour order; cubes of one colour share no node, so the result equals the numpy sweep's
 up to round-off (tested). Without numba (the optional extra ``sc_fem[fast]``) the numpy sweep runs.
