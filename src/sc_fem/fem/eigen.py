@@ -202,6 +202,59 @@ def choose_method(n: int, nnz: int, k: int, max_memory: float | None = None) -> 
     return "lobpcg", f"{times} ({why}); LOBPCG needs ~{need_l / 2**20:,.0f} MiB"
 
 
+JACOBI = ("jacobi", {"omega": 2.0 / 3.0, "iterations": 2})
+"""Smoother of the AMG V-cycle: damped Jacobi on ``D^-1 A`` scaled to spectral radius 1 (a block of
+vectors is smoothed by sparse matrix-matrix products, unlike Gauss-Seidel)."""
+
+
+class BlockVCycle:
+    """The V-cycle of a pyamg hierarchy applied to a block of vectors at once.
+
+    scipy's LOBPCG hands its preconditioner a block (n, k); pyamg's own V-cycle takes one vector
+    at a time, so each LOBPCG iteration cost k V-cycles of sparse matrix-vector products. Here
+    every level does its Jacobi sweeps, restriction and prolongation as sparse matrix-matrix
+    products on the whole block; the coarsest level is a dense pseudo-inverse, as pyamg's. Column
+    by column the result agrees with pyamg's ``solve(b, x0=0, maxiter=1, cycle="V")`` with the
+    same smoothers up to the spectral-radius estimate (5e-7 relative, tested); it is symmetric
+    positive definite. Measured at 158,976 DOFs (12 pairs): 26 s against 37 s with pyamg's
+    column-by-column Gauss-Seidel V-cycle (``benchmarks/scale.py`` compares the solvers)."""
+
+    def __init__(self, ml) -> None:
+        from pyamg.util.linalg import approximate_spectral_radius
+
+        self.levels = ml.levels
+        self.dinv, self.omega = [], []
+        for lvl in self.levels[:-1]:
+            d = lvl.A.diagonal()
+            dinv = np.where(d != 0, 1.0 / np.where(d != 0, d, 1.0), 0.0)
+            rho = approximate_spectral_radius(sp.diags(dinv) @ lvl.A)
+            self.dinv.append(dinv[:, None])
+            self.omega.append(JACOBI[1]["omega"] / rho)
+        self.coarse = np.linalg.pinv(self.levels[-1].A.toarray())
+        self.nu = JACOBI[1]["iterations"]
+
+    def _cycle(self, i: int, b: np.ndarray) -> np.ndarray:
+        if i == len(self.levels) - 1:
+            return self.coarse @ b
+        A, w, Dinv = self.levels[i].A, self.omega[i], self.dinv[i]
+        x = w * Dinv * b                                   # first sweep from x = 0
+        for _ in range(self.nu - 1):                       # pre-smoothing (a couple of sweeps)
+            x += w * Dinv * (b - A @ x)
+        x += self.levels[i].P @ self._cycle(i + 1, self.levels[i].R @ (b - A @ x))
+        for _ in range(self.nu):                           # post-smoothing
+            x += w * Dinv * (b - A @ x)
+        return x
+
+    def __call__(self, b: np.ndarray) -> np.ndarray:
+        """V-cycle applied to ``b`` (n,) or (n, k)."""
+        b = np.asarray(b, dtype=np.float64)
+        return self._cycle(0, b.reshape(b.shape[0], -1)).reshape(b.shape)
+
+    def operator(self) -> LinearOperator:
+        n = self.levels[0].A.shape[0]
+        return LinearOperator((n, n), matvec=self, matmat=self, dtype=np.float64)
+
+
 def rigid_body_modes(points: np.ndarray, free_dofs: np.ndarray | None = None) -> np.ndarray:
     """The 6 rigid-body displacement fields of ``points`` (m, 3): shape (3m or n_free, 6).
 
@@ -338,8 +391,9 @@ class EigenSolver:
             import pyamg
 
             self._A = A
-            ml = pyamg.smoothed_aggregation_solver(A, B=self.near_null, max_coarse=500, keep=False)
-            self._op = ml.aspreconditioner(cycle="V")
+            ml = pyamg.smoothed_aggregation_solver(A, B=self.near_null, max_coarse=500, keep=False,
+                                                   presmoother=JACOBI, postsmoother=JACOBI)
+            self._op = BlockVCycle(ml).operator()
             self.backend = "pyamg"
             self._info["levels"] = len(ml.levels)
         self._info["factor_memory_estimate"] = factor_memory_estimate(self.n, self.K.nnz)
