@@ -301,7 +301,7 @@ def test_bbox_cover_matches_a_loop_oracle():
 
 
 # ---------------------------------------------------------------- issue 11: no modes in the band
-def test_max_frequency_below_the_first_mode_is_a_clear_error():
+def test_max_frequency_below_the_first_mode_is_a_clear_error(tmp_path):
     from sc_fem.errors import InputError
 
     with pytest.raises(InputError, match=r"first one is at \d"):
@@ -309,8 +309,8 @@ def test_max_frequency_below_the_first_mode_is_a_clear_error():
     from sc_fem._cli.main import main
 
     assert main(["precompute-modes", "builtin:chair", "-r", "12", "--fix", "default", "--max-frequency", "1",
-                 "-o", "/tmp/never-written.modes.npz"]) == 2
-    assert not Path("/tmp/never-written.modes.npz").exists()
+                 "-o", str(tmp_path / "never-written.modes.npz")]) == 2
+    assert not any(tmp_path.iterdir())                          # not even a temporary file left
 
 
 # ---------------------------------------------------------------- issue 11: outputs checked first

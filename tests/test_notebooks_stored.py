@@ -25,9 +25,9 @@ def test_stored_outputs_name_no_path_of_this_machine(path):
 
 def test_the_check_sees_a_leaked_path():
     leaky = {"cells": [{"outputs": [{"name": "stderr", "output_type": "stream",
-                                     "text": ["/work/main/.venv/lib/python3.11/site-packages/tqdm/auto.py:21: x\n"]}]},
+                                     "text": ["/home/someone/project/.venv/lib/python3.11/site-packages/tqdm/auto.py:21: x\n"]}]},
                        {"outputs": [{"data": {"text/plain": "C:\\Users\\me\\x.npz"}}]}]}
-    assert nb_execute.machine_paths(leaky) == ["/work/main/.venv/lib/python3.11/site-packages/tqdm/auto.py:21:",
+    assert nb_execute.machine_paths(leaky) == ["/home/someone/project/.venv/lib/python3.11/site-packages/tqdm/auto.py:21:",
                                                "C:\\Users\\"]
     clean = {"cells": [{"outputs": [{"text": "mode file: chair.modes.npz 25 KiB\n"}]}, {"cells_without": 1}]}
     assert nb_execute.machine_paths({"cells": clean["cells"][:1]}) == []
