@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
-from .pde import PDEModel, _kron_space, fit
+from .pde import PDEModel, fit
 
 MIN_POINTS = 8
 """Points a piece needs (one per space function)."""
@@ -79,30 +79,7 @@ class SegmentedModel:
         m = self.model
         t_arr = np.asarray(t, dtype=float)
         s = np.atleast_1d(t_arr if normalized else m.normalize(t_arr)).ravel()
-        if m.rigid is None or m.reference is not None or not np.all(np.isfinite(s)):
-            return self._assemble(m.evaluate(s, normalized=True), t_arr.ndim == 0)
-        lhs, ub, _ = m._world_terms(s)                         # (nt, C S, 9, 3), (G, L, 8)
-        if ub.shape[0] != 1:
-            return self._assemble(m.evaluate(s, normalized=True), t_arr.ndim == 0)
-        # every piece shares the space basis: one matrix product per piece, written straight into
-        # its run of points of the whole curves (a later piece overwrites the joint, fixed below)
-        nt, n_c, n_seg, length = len(s), self.n_curves, self.n_segments, self.index.shape[1]
-        lhs = lhs.reshape(nt, n_c, n_seg, 27)
-        kron = _kron_space(ub[0])                                # (27, L 3)
-        out = np.empty((nt, n_c, self.n_points, 3))
-        flat = out.reshape(nt * n_c, 3 * self.n_points)
-        starts = self.index[:, 0]
-        for k, s0 in enumerate(starts):                          # a handful of pieces
-            np.matmul(lhs[:, :, k].reshape(nt * n_c, 27), kron, out=flat[:, 3 * s0:3 * (s0 + length)])
-        # points shared by several pieces (the joints, one or two each): the mean of all pieces
-        joint, count = self._joints()
-        acc = np.zeros((nt, n_c, len(joint), 3))
-        kr = kron.reshape(27, length, 3)
-        for k, s0 in enumerate(starts):                          # a handful of pieces
-            inside = (joint >= s0) & (joint < s0 + length)
-            acc[:, :, inside] += np.einsum("tcv,vpw->tcpw", lhs[:, :, k], kr[:, joint[inside] - s0])
-        out[:, :, joint] = acc / count[:, None]
-        return out[0] if t_arr.ndim == 0 else out
+        return self._assemble(m.evaluate(s, normalized=True), t_arr.ndim == 0)
 
     def _joints(self):
         """Points in several pieces and how many: (J,), (J,)."""
