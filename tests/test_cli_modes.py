@@ -104,3 +104,5 @@ def test_option_groups_from_the_command_line(tmp_path, capsys):
     assert b.resolution == 64                       # a 1e-9 tolerance never converges: the finest grid
     assert main(["precompute-modes", "builtin:beam", "-r", "8", "--tolerance", "0.1", "-o", str(out)]) == 2
     assert "--tolerance applies to --resolution auto only" in capsys.readouterr().err
+    assert main(["precompute-modes", "builtin:beam", "-r", "many", "-o", str(out)]) == 2
+    assert "resolution must be an integer or 'auto'" in capsys.readouterr().err

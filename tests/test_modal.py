@@ -305,6 +305,8 @@ def test_grouped_options_match_the_old_flat_keywords():
         modal(m, n_modes=2, damping=0.1, damping_ratio=0.2)
     with pytest.raises(TypeError, match="n_mode"):
         modal(m, n_mode=2)
+    with pytest.raises(InputError, match="applies to resolution='auto' only"), pytest.warns(DeprecationWarning):
+        modal("builtin:beam", resolution=8, tolerance=0.01)          # was silently ignored
     with pytest.raises(InputError, match="contradicts"):
         modal("builtin:beam", resolution=8, voxel=VoxelOptions(resolution=12))
     with pytest.raises(InputError, match="eigensolver must be one of"):

@@ -85,3 +85,23 @@ def test_a_millimetre_part_off_the_origin_behaves_like_the_same_part_in_metres_a
     sb = sc_fem.solve_static(m, gravity=(0, -9.81, 0))
     np.testing.assert_allclose(sa.vertex_displacements, sb.vertex_displacements, atol=1e-9 * np.abs(sb.vertex_displacements).max())
     assert sb.vertex_displacements[:, 1].min() < 0
+
+
+def test_fix_vertices_locate_the_vertices_once(monkeypatch):
+    """fix_vertices needs the embedding of the source vertices; the scene keeps that one instead of
+    embedding them a second time (and a single query point, as a list, is a valid source)."""
+    import sys
+
+    embed_mod = sys.modules["sc_fem.lattice.embed"]          # the module (sc_fem.lattice.embed is the function)
+
+    calls = []
+    real = embed_mod.embedding
+    monkeypatch.setattr(embed_mod, "embedding", lambda *a, **k: calls.append(1) or real(*a, **k))
+    model = sc_fem.voxelize("builtin:beam", resolution=8)
+    scene = sc_fem.Scene.from_model(model, "builtin:beam", fix_vertices=[0, 1, 2, 3])
+    assert len(scene.fixed_nodes) > 0 and scene.W.shape[0] == scene.rest_vertices.shape[0]
+    u = np.zeros((model.n_nodes, 3))
+    scene.vertex_positions(u)
+    assert len(calls) == 1
+    one = sc_fem.Scene.from_model(model, [[float(x) for x in model.nodes[5]]])
+    assert one.W.shape == (1, model.n_nodes)

@@ -88,11 +88,18 @@ class Scene:
             specs = None
         else:
             specs = expand_fix(list(fix) if isinstance(fix, (list, tuple)) else [fix], source)
-        nodes = fixed_nodes(model, specs, vertices=fix_vertices,
-                            mesh_vertices=None if mesh is None else np.asarray(mesh.vertices, dtype=float))
+        emb = None
+        if fix_vertices is not None:             # locating the vertices is the embedding: do it once
+            from .lattice.embed import embedding
+
+            emb = embedding(model, np.asarray(mesh.vertices, dtype=float))
+        nodes = fixed_nodes(model, specs, vertices=fix_vertices, mesh_embedding=emb)
         record = () if specs is None else tuple(str(s) for s in specs)
-        return cls(mesh=mesh, model=model, fixed_nodes=np.asarray(nodes, dtype=np.int64), fix=record,
-                   n_fix_vertices=0 if fix_vertices is None else int(np.size(fix_vertices)))
+        scene = cls(mesh=mesh, model=model, fixed_nodes=np.asarray(nodes, dtype=np.int64), fix=record,
+                    n_fix_vertices=0 if fix_vertices is None else int(np.size(fix_vertices)))
+        if emb is not None:
+            scene.__dict__["embedding"] = emb    # the value the cached property would compute
+        return scene
 
     # ------------------------------------------------------------------ the source surface
     @property
@@ -190,7 +197,9 @@ class Scene:
 def _source(mesh: Any):
     """A source mesh from anything :func:`sc_fem.load_mesh` reads; a bare ``(n, 3)`` array of
     points becomes a face-less mesh without the point-cloud checks (one point is fine here)."""
-    if isinstance(mesh, (np.ndarray, list)) and np.ndim(mesh) == 2:
+    points = isinstance(mesh, np.ndarray) and mesh.ndim == 2 or (
+        isinstance(mesh, list) and len(mesh) > 0 and all(np.ndim(p) == 1 for p in mesh))
+    if points:
         import trimesh
 
         from ._validate import as_points

@@ -92,7 +92,8 @@ def _modal_options(args) -> dict:
     from ..fem.eigen import EigenOptions
     from ..modes.options import AutoResolution, Damping, parse_resolution
 
-    resolution = parse_resolution(args.resolution)
+    voxel = voxel_options(args)                        # holds --resolution N; "auto" is resolution=
+    resolution = parse_resolution(args.resolution) if voxel.resolution is None else None
     if args.tolerance is not None:
         if not isinstance(resolution, AutoResolution):
             raise InputError("--tolerance applies to --resolution auto only")
@@ -100,7 +101,7 @@ def _modal_options(args) -> dict:
     damping = None
     if args.damping is not None or args.rayleigh is not None:
         damping = Damping(ratio=args.damping, rayleigh=None if args.rayleigh is None else tuple(args.rayleigh))
-    return dict(resolution=resolution, voxel=voxel_options(args), n_modes=args.modes,
+    return dict(resolution=resolution, voxel=voxel, n_modes=args.modes,
                 max_frequency=args.max_frequency, element=args.element, lumped=args.lumped,
                 keep_rigid=args.keep_rigid, keep_lattice=args.keep_lattice, damping=damping,
                 eigen=EigenOptions(solver=args.eigensolver, backend=args.backend), fix=list(args.fix) or None,

@@ -59,10 +59,10 @@ def voxel_options(args):
     """The :class:`sc_fem.VoxelOptions` of the grid/material options of ``args`` (``--resolution``
     only when it is a number: ``auto`` is the modal command's business)."""
     from ..lattice.options import VoxelOptions
+    from ..modes.options import AutoResolution, parse_resolution
 
-    res = getattr(args, "resolution", None)
-    res = None if res is None or (isinstance(res, str) and not res.strip().isdigit()) else int(res)
-    return VoxelOptions(resolution=res, pitch=args.pitch, scale=args.scale, fill=args.fill, occupancy=args.occupancy,
+    res = parse_resolution(getattr(args, "resolution", None))      # a bad value is an error here
+    return VoxelOptions(resolution=None if isinstance(res, AutoResolution) else res, pitch=args.pitch, scale=args.scale, fill=args.fill, occupancy=args.occupancy,
                         keep=args.keep, shell_thickness=args.shell_thickness, stiffness=args.stiffness,
                         youngs=args.youngs, poisson=args.poisson, density=args.density, mass=args.mass)
 

@@ -272,16 +272,12 @@ class Assembler:
             return self._scatter(lambda s, e: flat[s:e], refill=True)
         from .material import lame
 
-        h = self.model.h
         if youngs is None and poisson is None:
             # the model's partial-cube stiffness (finite-cell moments or fraction-scaled)
             return self._scatter(cube_stiffness_chunks(self.model, self.element))
-        else:
-            E = self.model.youngs if youngs is None else _per_cube(youngs, "youngs", n)
-            nu = self.model.poisson if poisson is None else _per_cube(poisson, "poisson", n)
-            lam, mu = lame(E, nu)
-        h = self.model.h
-        return self._scatter(stiffness_chunks(self.element, lam, mu, h))
+        E = self.model.youngs if youngs is None else _per_cube(youngs, "youngs", n)
+        nu = self.model.poisson if poisson is None else _per_cube(poisson, "poisson", n)
+        return self._scatter(stiffness_chunks(self.element, *lame(E, nu), self.model.h))
 
     def mass(self, *, lumped: bool = False, masses=None) -> sp.csr_matrix:
         """Assemble ``M`` (kg).

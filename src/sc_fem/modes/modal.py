@@ -347,7 +347,9 @@ def _from_legacy(legacy: dict, resolution, voxel, damping, eigen):
             raise InputError(f"give {new_name}= or its old spelling {'/'.join(old_names)}=, not both")
 
     auto_keys = [k for k in ("tolerance", "resolutions") if legacy.get(k) is not None]
-    if auto_keys and isinstance(resolution, str) and resolution.strip().lower() == "auto":
+    if auto_keys:
+        if not isinstance(parse_resolution(resolution), AutoResolution):
+            raise InputError(f"{'/'.join(auto_keys)}= applies to resolution='auto' only")
         base = AutoResolution()
         resolution = AutoResolution(resolutions=legacy.get("resolutions") or base.resolutions,
                                     tolerance=legacy.get("tolerance") or base.tolerance)
