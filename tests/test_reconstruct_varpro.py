@@ -13,6 +13,8 @@ from scipy.spatial.transform import Rotation
 from sc_fem import reconstruct as R
 from sc_fem.reconstruct import varpro as V
 from sc_fem.reconstruct.basis import space_basis_rates, time_basis_rates
+from sc_fem.errors import InputError
+from sc_fem.reconstruct.pde import SEARCH_POINTS
 from sc_fem.reconstruct.segments import fit_segmented
 
 
@@ -125,6 +127,38 @@ def test_search_reports_the_objective_of_the_rates_it_returns():
     data = V.FitData.build(x, u)
     f = V.residual(V.space_side(data, [m.r]), V.time_side(s, m.alpha * np.array([0.99, 1.0, 1.01])), 1e-11)[0]
     assert f[1] <= f[0] and f[1] <= f[2]
+
+
+@pytest.mark.parametrize("shared", [True, False])
+def test_search_on_a_subset_of_points_then_constants_from_all(shared):
+    x, u, s = _data(n_curves=2, n_points=200, shared=shared, seed=6)
+    m = R.fit(x, s, remove_rigid=False, u=u, grid=(8, 8))
+    pts = m.search.points
+    assert len(pts) == SEARCH_POINTS and pts[0] == 0 and pts[-1] == 199 and np.all(np.diff(pts) > 0)
+    # the objective the search reports is the residual of the fit to those points alone ...
+    sub = R.fit(x[:, :, pts], s, r=m.r, alpha=m.alpha, remove_rigid=False, u=u[:, pts])
+    np.testing.assert_allclose(m.search.best_objective, sub.residual_rms ** 2 * x[:, :, pts].size, rtol=1e-6)
+    # ... while the constants are the least squares of all points at the (r, alpha) found
+    full = R.fit(x, s, r=m.r, alpha=m.alpha, remove_rigid=False, u=u)
+    np.testing.assert_allclose(m.coefficients, full.coefficients, rtol=0, atol=1e-10 * np.abs(full.coefficients).max())
+    every = R.fit(x, s, remove_rigid=False, u=u, grid=(8, 8), search_points=None)
+    assert len(every.search.points) == 200
+    for bad in (7, 2.5, 0):
+        with pytest.raises(InputError, match="search_points"):
+            R.fit(x, s, remove_rigid=False, u=u, search_points=bad)
+
+
+@pytest.mark.parametrize("noise", [1e-2, 0.0])
+def test_residual_rms_equals_the_pointwise_residual(noise):
+    """Noisy data takes the |X|^2 - |fit|^2 path, data the model fits exactly the pointwise one;
+    both equal the RMS of the curves minus the evaluated fit."""
+    x, u, s = _data(n_curves=3, n_points=50, seed=7)
+    if noise == 0.0:
+        x = R.fit(x, s, r=2.0, alpha=1.0, remove_rigid=False, u=u).evaluate_aligned(s)
+    m = R.fit(x, s, r=2.0, alpha=1.0, remove_rigid=False, u=u)
+    direct = np.sqrt(np.mean((m.evaluate_aligned(s) - x) ** 2))
+    np.testing.assert_allclose(m.residual_rms, direct, rtol=1e-8, atol=1e-14 * np.abs(x).max())
+    assert (m.residual_rms > 1e-3) == (noise > 0)
 
 
 def test_remove_rigid_equals_per_frame_kabsch_loop():

@@ -68,6 +68,11 @@ class FitData:
         xxf = np.einsum("cfwp,cfwp->f", x, x)
         return cls(x=x, u_rows=space_rows(u), xxf=xxf)
 
+    def subset(self, points: np.ndarray) -> FitData:
+        """The data at the curve points ``points`` (indices) only."""
+        x = np.ascontiguousarray(self.x[..., points])
+        return FitData(x=x, u_rows=self.u_rows[:, points], xxf=np.einsum("cfwp,cfwp->f", x, x))
+
     @property
     def shared(self) -> bool:
         return self.u_rows.shape[0] == 1
