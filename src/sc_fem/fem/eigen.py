@@ -202,6 +202,9 @@ def choose_method(n: int, nnz: int, k: int, max_memory: float | None = None) -> 
     return "lobpcg", f"{times} ({why}); LOBPCG needs ~{need_l / 2**20:,.0f} MiB"
 
 
+LOBPCG_ROUND = 20
+"""LOBPCG iterations between checks of the wanted eigenpairs' residuals (see ``EigenSolver._lobpcg``)."""
+
 JACOBI = ("jacobi", {"omega": 2.0 / 3.0, "iterations": 2})
 """Smoother of the AMG V-cycle: damped Jacobi on ``D^-1 A`` scaled to spectral radius 1 (a block of
 vectors is smoothed by sparse matrix-matrix products, unlike Gauss-Seidel)."""
@@ -220,22 +223,23 @@ class BlockVCycle:
     column-by-column Gauss-Seidel V-cycle (``benchmarks/scale.py`` compares the solvers)."""
 
     def __init__(self, ml) -> None:
-        from pyamg.util.linalg import approximate_spectral_radius
+        from pyamg.relaxation.smoothing import rho_D_inv_A
 
         self.levels = ml.levels
         self.dinv, self.omega = [], []
         for lvl in self.levels[:-1]:
             d = lvl.A.diagonal()
             dinv = np.where(d != 0, 1.0 / np.where(d != 0, d, 1.0), 0.0)
-            rho = approximate_spectral_radius(sp.diags(dinv) @ lvl.A)
+            # pyamg's estimate of the spectral radius of D^-1 A, cached on the matrix when pyamg set
+            # up its own Jacobi smoothers: the same number, not a second Krylov run per level
             self.dinv.append(dinv[:, None])
-            self.omega.append(JACOBI[1]["omega"] / rho)
-        self.coarse = np.linalg.pinv(self.levels[-1].A.toarray())
+            self.omega.append(JACOBI[1]["omega"] / rho_D_inv_A(lvl.A))
+        self.coarse = _coarse_solver(self.levels[-1].A.toarray())
         self.nu = JACOBI[1]["iterations"]
 
     def _cycle(self, i: int, b: np.ndarray) -> np.ndarray:
         if i == len(self.levels) - 1:
-            return self.coarse @ b
+            return self.coarse(b)
         A, w, Dinv = self.levels[i].A, self.omega[i], self.dinv[i]
         x = w * Dinv * b                                   # first sweep from x = 0
         for _ in range(self.nu - 1):                       # pre-smoothing (a couple of sweeps)
@@ -253,6 +257,20 @@ class BlockVCycle:
     def operator(self) -> LinearOperator:
         n = self.levels[0].A.shape[0]
         return LinearOperator((n, n), matvec=self, matmat=self, dtype=np.float64)
+
+
+def _coarse_solver(a: np.ndarray):
+    """``b -> A^-1 b`` for the dense coarsest matrix of the hierarchy: a Cholesky factor when
+    ``A`` is positive definite (the shifted ``K - sigma M`` always is), else the pseudo-inverse
+    (pyamg's default, an SVD: 3 s for a 1,900-DOF coarsest level against 0.05 s for Cholesky)."""
+    from scipy.linalg import LinAlgError, cho_factor, cho_solve
+
+    try:
+        factor = cho_factor(a, lower=True, check_finite=False)
+    except LinAlgError:
+        pinv = np.linalg.pinv(a)
+        return lambda b: pinv @ b
+    return lambda b: cho_solve(factor, b, check_finite=False)
 
 
 def rigid_body_modes(points: np.ndarray, free_dofs: np.ndarray | None = None) -> np.ndarray:
@@ -425,10 +443,23 @@ class EigenSolver:
             # lobpcg's tol is absolute on ||A x - mu M x|| (x M-normalized): scale it by the shift, the
             # smallest eigenvalue scale we know, times the typical ||M x|| ~ sqrt(mean diag M)
             tol_abs = self.lobpcg_tol * abs(self.sigma) * float(np.sqrt(np.mean(self.M.diagonal())))
-            # the V-cycle goes in directly: scipy applies it to a block column by column
-            _, V, hist = lobpcg(self._A, X, B=self.M, M=self._op, tol=tol_abs, maxiter=self.maxiter,
-                                largest=False, retResidualNormsHistory=True)
-        return V, {"iterations": len(hist)}
+            # scipy's LOBPCG stops only when every vector of the block has converged, the extra
+            # ones too, which converge last (on the 24,336-DOF cantilever the 6 wanted modes
+            # converged at iteration 19 and the block at 53); so it runs in rounds of
+            # LOBPCG_ROUND iterations, each restarted from the last, until the k wanted pass
+            its = rounds = 0
+            while True:
+                lam, V, hist = lobpcg(self._A, X, B=self.M, M=self._op, tol=tol_abs,
+                                      maxiter=min(LOBPCG_ROUND, self.maxiter - its), largest=False,
+                                      retResidualNormsHistory=True)
+                its, rounds = its + len(hist), rounds + 1
+                order = np.argsort(lam)
+                lam, V = lam[order], V[:, order]
+                R = self._A @ V[:, :k] - (self.M @ V[:, :k]) * lam[None, :k]
+                if np.linalg.norm(R, axis=0).max() <= tol_abs or its >= self.maxiter:
+                    break
+                X = V
+        return V, {"iterations": its, "rounds": rounds}
 
     def solve(self, k: int) -> EigenResult:
         """The ``k`` smallest eigenpairs (``1 <= k < n``), refined by Rayleigh--Ritz, with residuals."""
