@@ -1,7 +1,8 @@
 """Cost against size: voxelize -> assemble -> 6 modes -> bake, from ~10k to ~1M cubes.
 
-Each stage of each size runs in a **fresh process**, so its wall time and its peak memory (the
-resident set size sampled every 5 ms during the stage, minus what the process held before it) are its own.
+Each stage of each size runs in a **fresh process** (the bake in the process of the modes it maps), so
+its wall time and its peak memory (the resident set size sampled every 5 ms during the stage, minus
+what the process held before it) are its own.
 The model is a solid bar of 4a x a x a cubes (a 4 m steel cantilever, one end held) voxelized from
 a box mesh, so the cube count is exact and the frequencies are checkable; the bake maps the modes
 onto a surface mesh of about 10 % as many vertices as cubes. Prints a Markdown table, the measured
@@ -12,6 +13,7 @@ shift-invert and LOBPCG + AMG solvers side by side; writes ``benchmarks/out/scal
     python benchmarks/scale.py                      # 10k, 30k, 100k, 300k, 1M cubes (~15 min, ~8 GB)
     python benchmarks/scale.py --quick              # 10k, 30k, 100k
     python benchmarks/scale.py --sizes 10000 50000 --compare 46240
+    python benchmarks/scale.py --sizes 1000000 --compare 0 --dask 1000000   # + the same as one Dask task
 """
 
 from __future__ import annotations
@@ -26,20 +28,17 @@ import numpy as np
 from _common import out_path, print_table, save_figure
 
 STAGE = textwrap.dedent(r"""
-    import json, sys, time
+    import json, os, sys, threading, time
     import numpy as np, trimesh
     import sc_fem
     from sc_fem.fem.eigen import solve_eigen, rigid_body_modes
 
-    a, stage, method = int(sys.argv[1]), sys.argv[2], sys.argv[3]
-    h = 1.0 / a
-    box = trimesh.creation.box(extents=(4.0, 1.0, 1.0))
-    box.apply_translation((2.0, 0.5, 0.5))
-    import os, threading
     PAGE = os.sysconf("SC_PAGE_SIZE")
+
     def now():                                   # resident set size now, bytes
         with open("/proc/self/statm") as fh:
             return int(fh.read().split()[1]) * PAGE
+
     class Peak:                                  # samples the RSS every 5 ms during a stage
         def __enter__(self):
             self.base = self.top = now(); self.on = True
@@ -52,48 +51,69 @@ STAGE = textwrap.dedent(r"""
         @property
         def added(self):
             return self.top - self.base
-    out = {}
-    t0 = time.perf_counter()
-    with Peak() as pk:
-        model = sc_fem.voxelize(box, pitch=h, fill="solid", youngs=200e9, poisson=0.3, density=7850.0)
-    out["voxelize"] = time.perf_counter() - t0
-    out["cubes"] = model.n_cubes
-    if stage == "voxelize":
-        out["peak"] = pk.added
-        print(json.dumps(out)); sys.exit()
-    fixed = sc_fem.fixed_nodes(model, "x<min+1e-9")
-    t0 = time.perf_counter()
-    with Peak() as pk:
-        asm = sc_fem.Assembler(model, "q1i", fixed_dofs=sc_fem.fixed_dofs(fixed))
-        K = asm.stiffness(); M = asm.mass()
-    out["assemble"] = time.perf_counter() - t0
-    out["dofs"] = K.shape[0]
-    if stage == "assemble":
-        out["peak"] = pk.added
-        print(json.dumps(out)); sys.exit()
-    t0 = time.perf_counter()
-    with Peak() as pk:
-        eig = solve_eigen(K, M, 6, method=method, near_null=rigid_body_modes(model.nodes_m, asm.free_dofs))
-    out["modes"] = time.perf_counter() - t0
-    out["method"], out["reason"] = eig.method, eig.reason
-    out["f_hz"] = (np.sqrt(np.maximum(eig.eigenvalues, 0)) / 2 / np.pi).tolist()
-    if stage == "modes":
-        out["peak"] = pk.added
-        print(json.dumps(out)); sys.exit()
-    surf = trimesh.creation.box(extents=(4.0, 1.0, 1.0))
-    surf.apply_translation((2.0, 0.5, 0.5))
-    while len(surf.vertices) < 0.1 * model.n_cubes:
-        surf = surf.subdivide()
-    t0 = time.perf_counter()
-    with Peak() as pk:
-        W = sc_fem.embed(model, surf.vertices)
-        node = asm.expand(eig.vectors)                     # (m, 3, k)
-        vert = np.asarray(W @ node.reshape(model.n_nodes, -1)).reshape(len(surf.vertices), 3, -1)
-    out["bake"] = time.perf_counter() - t0
-    out["vertices"] = len(surf.vertices)
-    out["peak"] = pk.added
-    print(json.dumps(out))
+
+    def run(a, stage, method):   # the pipeline up to stage (voxelize, assemble, modes + bake), each timed
+        box = trimesh.creation.box(extents=(4.0, 1.0, 1.0))
+        box.apply_translation((2.0, 0.5, 0.5))
+        out = {}
+        t0 = time.perf_counter()
+        with Peak() as pk:
+            model = sc_fem.voxelize(box, pitch=1.0 / a, fill="solid", youngs=200e9, poisson=0.3, density=7850.0)
+        out["voxelize"], out["voxelize_peak"] = time.perf_counter() - t0, pk.added
+        out["cubes"] = model.n_cubes
+        if stage == "voxelize":
+            return out
+        fixed = sc_fem.fixed_nodes(model, "x<min+1e-9")
+        t0 = time.perf_counter()
+        with Peak() as pk:
+            asm = sc_fem.Assembler(model, "q1i", fixed_dofs=sc_fem.fixed_dofs(fixed))
+            K = asm.stiffness(); M = asm.mass()
+        out["assemble"], out["assemble_peak"] = time.perf_counter() - t0, pk.added
+        out["dofs"] = K.shape[0]
+        if stage == "assemble":
+            return out
+        t0 = time.perf_counter()
+        with Peak() as pk:
+            eig = solve_eigen(K, M, 6, method=method, near_null=rigid_body_modes(model.nodes_m, asm.free_dofs))
+        out["modes"], out["modes_peak"] = time.perf_counter() - t0, pk.added
+        out["method"], out["reason"] = eig.method, eig.reason
+        out["iterations"] = eig.info.get("iterations")
+        out["f_hz"] = (np.sqrt(np.maximum(eig.eigenvalues, 0)) / 2 / np.pi).tolist()
+        surf = trimesh.creation.box(extents=(4.0, 1.0, 1.0))
+        surf.apply_translation((2.0, 0.5, 0.5))
+        while len(surf.vertices) < 0.1 * model.n_cubes:
+            surf = surf.subdivide()
+        t0 = time.perf_counter()
+        with Peak() as pk:       # the modes onto the surface (the same process: bake needs the modes)
+            W = sc_fem.embed(model, surf.vertices)
+            node = asm.expand(eig.vectors)                     # (m, 3, k)
+            vert = np.asarray(W @ node.reshape(model.n_nodes, -1)).reshape(len(surf.vertices), 3, -1)
+        out["bake"], out["bake_peak"] = time.perf_counter() - t0, pk.added
+        out["vertices"] = len(surf.vertices)
+        return out
+
+    def task(a, method):                         # the whole pipeline as one Dask task
+        with Peak() as pk:
+            got = run(a, "modes", method)
+        got["peak"] = pk.added
+        return got
+
+    if __name__ == "__main__":
+        a, stage, method = int(sys.argv[1]), sys.argv[2], sys.argv[3]
+        if stage != "dask":
+            out = run(a, stage, method)
+            out["peak"] = out[f"{stage}_peak"]
+        else:                # one worker process on a local cluster, no memory limit
+            from dask.distributed import Client, LocalCluster
+            t0 = time.perf_counter()
+            with LocalCluster(n_workers=1, threads_per_worker=2, processes=True, memory_limit=0,
+                              dashboard_address=None) as cluster, Client(cluster) as client:
+                started = time.perf_counter() - t0
+                out = client.submit(task, a, method, pure=False).result()
+            out["dask"], out["cluster_start"] = time.perf_counter() - t0, started
+        print(json.dumps(out))
 """)
+
 
 
 def run_stage(a: int, stage: str, method: str = "auto") -> dict:
@@ -102,6 +122,29 @@ def run_stage(a: int, stage: str, method: str = "auto") -> dict:
         tail = (res.stderr or res.stdout).strip().splitlines()[-1:]
         return {"error": " ".join(tail)[:200]}
     return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def dask_comparison(a: int, rows: list) -> str:
+    """The pipeline at ``4 a^3`` cubes run directly (the table's stages, or one fresh run) and as one
+    task on a local Dask cluster: wall time and peak memory, as a Markdown table."""
+    direct = next((r for r in rows if r["a"] == a and isinstance(r.get("modes"), float)), None)
+    if direct is None:
+        direct = run_stage(a, "modes")
+        direct = {**direct, "a": a}
+    got = run_stage(a, "dask")
+    if "error" in got or "error" in direct:
+        msg = got.get("error") or direct.get("error")
+        print(f"[dask] FAILED: {msg}", file=sys.stderr, flush=True)
+        return f"Dask comparison at {4 * a**3:,} cubes failed: {msg}"
+    stages = ("voxelize", "assemble", "modes", "bake")
+    t_direct = sum(direct[s] for s in stages)
+    peak_direct = max(direct[f"{s}_peak"] for s in stages)
+    rows_ = [["direct (stages in fresh processes)", f"{t_direct:.1f}", "-", f"{peak_direct / 2**20:,.0f} (largest stage)"],
+             ["one task on a local Dask cluster", f"{got['dask']:.1f}",
+              f"{got['cluster_start']:.1f} s start-up, tasks {sum(got[s] for s in stages):.1f} s",
+              f"{got['peak'] / 2**20:,.0f} (whole task)"]]
+    print()
+    return print_table([f"{got['cubes']:,} cubes, {got['dofs']:,} DOFs", "wall s", "of which", "peak MiB"], rows_)
 
 
 def side(n_cubes: float) -> int:
@@ -115,6 +158,9 @@ def main(argv=None) -> int:
     ap.add_argument("--sizes", type=int, nargs="*", default=None, help="approximate cube counts")
     ap.add_argument("--modes-up-to", type=int, default=2_000_000,
                     help="skip the modes and bake stages above this many cubes (they take longest)")
+    ap.add_argument("--dask", type=int, default=0, metavar="CUBES",
+                    help="also run the whole pipeline at about this many cubes as one task on a local Dask "
+                         "cluster (one worker process) and compare it with the same pipeline run directly")
     ap.add_argument("--compare", type=int, default=46240,
                     help="cubes of the size where shift-invert and LOBPCG run side by side (default: the "
                          "92 x 23 x 23-cube cantilever of 158,976 free DOFs; 0 to skip)")
@@ -124,20 +170,23 @@ def main(argv=None) -> int:
     for n in sizes:
         a = side(n)
         r = {"a": a}
-        for stage in ("voxelize", "assemble", "modes", "bake"):       # a fresh process per stage
-            if stage in ("modes", "bake") and 4 * a**3 > args.modes_up_to:
-                r[stage] = None
+        for stage in ("voxelize", "assemble", "modes"):       # a fresh process per stage; "modes" also bakes
+            if stage == "modes" and 4 * a**3 > args.modes_up_to:
+                r["modes"] = r["bake"] = None
                 continue
             got = run_stage(a, stage)
             if "error" in got:
                 r[stage] = got["error"]
                 print(f"[{4 * a**3:,} cubes] {stage} FAILED: {got['error']}", file=sys.stderr, flush=True)
                 break
-            r[stage], r[f"{stage}_peak"] = got[stage], got["peak"]
-            r.update({k: got[k] for k in ("cubes", "dofs", "method", "reason", "f_hz", "vertices") if k in got})
-            series[stage].append((got["cubes"], got[stage], got["peak"]))
-            print(f"[{got['cubes']:,} cubes] {stage}: {got[stage]:.2f} s, peak +{got['peak'] / 2**20:,.0f} MiB"
-                  + (f" ({got['method']}: {got['reason']})" if stage == "modes" else ""), file=sys.stderr, flush=True)
+            r.update({k: got[k] for k in ("cubes", "dofs", "method", "reason", "f_hz", "vertices", "iterations")
+                      if k in got})
+            for done in (stage, "bake") if stage == "modes" else (stage,):
+                r[done], r[f"{done}_peak"] = got[done], got[f"{done}_peak"]
+                series[done].append((got["cubes"], got[done], got[f"{done}_peak"]))
+                print(f"[{got['cubes']:,} cubes] {done}: {got[done]:.2f} s, peak +{got[f'{done}_peak'] / 2**20:,.0f} MiB"
+                      + (f" ({got['method']}, {got['iterations']} iterations: {got['reason']})" if done == "modes" else ""),
+                      file=sys.stderr, flush=True)
         rows.append(r)
 
     def cell(r, s):
@@ -174,6 +223,8 @@ def main(argv=None) -> int:
             print(f"[compare] {method}: {cmp_rows[-1][2]} s", file=sys.stderr, flush=True)
         print()
         text += "\n\n" + print_table(["asked", "free DOFs", "6 modes, s", "peak MiB", "ran", "reason"], cmp_rows)
+    if args.dask:
+        text += "\n\n" + dask_comparison(side(args.dask), rows)
     with open(out_path("scale.md"), "w") as fh:
         fh.write(text + "\n")
 
