@@ -233,3 +233,21 @@ def test_world_evaluate_equals_per_point_rigid_motion_loop(shared):
         for p in range(x.shape[2]):
             expect = anchors[f, c] + rots[f, c].T @ (aligned[f, c, p] - m.rigid.pivot[c])
             np.testing.assert_allclose(out[f, c, p], expect, atol=1e-12)
+
+
+def test_rotation_vectors_equal_scipy_at_every_angle():
+    """Loop-free rotation vectors of the cubic rigid interpolation vs scipy, for random rotations
+    and angles near 0 and near pi (where the quaternion formula must switch branches)."""
+    from sc_fem.reconstruct.rigid import rotvec_from_matrix
+
+    rng = np.random.default_rng(8)
+    axes = rng.normal(size=(200, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    angles = np.concatenate([np.geomspace(1e-12, 1e-2, 100), np.pi - np.geomspace(1e-12, 1e-2, 100)])
+    for rot in (Rotation.random(500, random_state=9), Rotation.from_rotvec(axes * angles[:, None])):
+        m = rot.as_matrix()
+        got = rotvec_from_matrix(m.reshape(5, -1, 3, 3)).reshape(-1, 3)     # any leading shape
+        ref = rot.as_rotvec()
+        np.testing.assert_allclose(Rotation.from_rotvec(got).as_matrix(), m, rtol=0, atol=1e-14)
+        near_pi = np.linalg.norm(ref, axis=1) > np.pi - 1e-6                 # axis sign free at pi
+        np.testing.assert_allclose(got[~near_pi], ref[~near_pi], rtol=0, atol=1e-14)
