@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -47,6 +49,9 @@ def test_cli_reconstruct_extracted_curves(tmp_path, capsys):
         assert z["E_A_pde"].mean() < 1e-4
         assert z["E_A_pde"].mean() < z["E_A_bspline"].mean()
         assert z["mesh_error_pde"].max() < 5e-3
+        # the animation file is recorded beside the mesh the animation came from, not over it
+        meta = json.loads(str(z["meta_json"]))
+        assert meta["animation"] == str(anim) and meta["source"] != str(anim)
     text = rep.read_text()
     assert text.count("\n| ") >= 11 and "PDE E_A" in text and "B-spline scalars" in text
     assert "mean E_A" in capsys.readouterr().out

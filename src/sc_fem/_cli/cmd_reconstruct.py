@@ -89,7 +89,7 @@ def run(args) -> int:
         alpha=args.alpha, parametrization=args.parametrization, criterion=args.criterion,
         rigid_interpolation=args.rigid_interpolation, remove_rigid=not args.no_rigid, n_control=args.n_control,
         offset=args.offset, segments=_segments(args.segments), curves_from=args.curves_from)
-    result = replace(result, meta={**result.meta, "source": str(args.animation)})
+    result = replace(result, meta={**result.meta, "animation": str(args.animation)})   # "source": the mesh
     save_reconstruction(args.output, result)
     if args.report:
         with atomic_path(args.report) as tmp:

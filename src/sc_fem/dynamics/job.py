@@ -9,15 +9,13 @@ import numpy as np
 
 from .._validate import as_float_array, positive_scalar
 from ..errors import InputError
+from ..fem.reference import GRAVITY
 
 LATTICE_TRACK_BYTES = 256 * 2**20
 """Largest recorded node-displacement history (bytes) that a run keeps for its animation file."""
 
 ENERGY_GAIN_WARN = 0.05
 """Energy gained (fraction of the largest kinetic + elastic energy) past which a run is flagged."""
-
-GRAVITY = 9.81
-"""m/s^2."""
 
 AXES = "xyz"
 
