@@ -254,3 +254,28 @@ def test_patch_test_holds_for_a_millimetre_part_far_from_the_origin(element):
     energy = np.einsum("i,nij,j->n", u, k, u)
     density = lam[part] * np.trace(eps) ** 2 + 2 * mu[part] * np.sum(eps * eps)
     np.testing.assert_allclose(energy, density * (m.moments[part, 0] + FCM_ALPHA) * m.h ** 3, rtol=1e-9)
+
+
+def test_cube_mass_chunks_equal_the_per_cube_formulas():
+    """Loop oracle: full cubes get exactly m_e times the reference mass matrix, partly filled
+    ones their moment mass; each cube keeps its mass (1^T M_e 1 per direction = m_e)."""
+    import trimesh
+
+    m = sc_fem.voxelize(trimesh.creation.icosphere(3, 0.5), resolution=8, fill="solid")
+    assert m.stiffness == "moments"
+    partial = m.fraction < E.PARTIAL_BELOW
+    assert 0 < partial.sum() < m.n_cubes
+    got = E.cube_mass_chunks(m, m.mass)(0, m.n_cubes)
+    ref = E.reference_mass().ravel()
+    for c in range(m.n_cubes):                                         # loop over cubes: the oracle
+        if partial[c]:       # a batched matrix product: equal up to its rounding
+            want = E.moment_mass(m.moments[c:c + 1], m.mass[c:c + 1])[0]
+            np.testing.assert_allclose(got[c], want, rtol=0, atol=1e-10 * np.abs(want).max())
+        else:
+            np.testing.assert_array_equal(got[c], m.mass[c] * ref)
+    per_dir = got.reshape(-1, 8, 3, 8, 3)[:, :, 0, :, 0].sum(axis=(1, 2))
+    np.testing.assert_allclose(per_dir, m.mass, rtol=1e-12)
+    # and a full cube's moment mass is the reference one up to round-off (why full cubes skip it)
+    full = np.flatnonzero(~partial)[:5]
+    np.testing.assert_allclose(E.moment_mass(m.moments[full], m.mass[full]), got[full], rtol=1e-12,
+                               atol=1e-13 * np.abs(got[full]).max())

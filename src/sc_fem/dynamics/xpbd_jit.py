@@ -14,31 +14,13 @@ import math
 
 import numpy as np
 
-try:  # optional: the numpy sweep is the fallback
-    import numba
-except ImportError:  # pragma: no cover - exercised when numba is absent
-    numba = None
-
-
-def available() -> bool:
-    """True when numba is importable (the compiled sweep can run)."""
-    return numba is not None
+from .._jit import available, choose_kernel as _choose, compiled  # noqa: F401 - available: whether it can run
 
 
 def choose_kernel(kernel: str, applicable: bool) -> str:
     """``"numba"`` or ``"numpy"`` for the requested ``kernel`` (see :class:`~sc_fem.dynamics.xpbd.XPBDSolver`)."""
-    from ..errors import InputError
-
-    if kernel not in ("auto", "numba", "numpy"):
-        raise InputError(f"kernel must be 'auto', 'numba' or 'numpy', got {kernel!r}")
-    if kernel == "numba":
-        if not available():
-            raise InputError("kernel='numba' needs numba (pip install 'sc_fem[fast]'); kernel='numpy' runs without it")
-        if not applicable:
-            raise InputError("the compiled kernel covers the Neo-Hookean Gauss-Seidel sweep only "
-                             "(constraints='neohookean', gauss_seidel=True)")
-        return "numba"
-    return "numba" if kernel == "auto" and applicable and available() else "numpy"
+    return _choose(kernel, applicable, "the compiled kernel covers the Neo-Hookean Gauss-Seidel sweep only "
+                                       "(constraints='neohookean', gauss_seidel=True)")
 
 
 def _nh_sweep_py(x, hexes, order, w, lamD, lamH, aD, aH, gamma, L, DN, h):  # pragma: no cover - compiled
@@ -128,5 +110,5 @@ def _nh_sweep_py(x, hexes, order, w, lamD, lamH, aD, aH, gamma, L, DN, h):  # pr
                 x[nd, j] = X[a, j] + wc[a] * (LX[a, j] * gscale * dD + gH[a, j] * dH)
 
 
-nh_sweep = numba.njit(cache=True, nogil=True)(_nh_sweep_py) if numba is not None else None
+nh_sweep = compiled(_nh_sweep_py)
 """The compiled sweep (None without numba); arguments as :func:`_nh_sweep_py`."""

@@ -16,7 +16,9 @@ Two paths:
     chunk by chunk of cubes: the CSR position of each element entry is computed on the fly from
     small per-node tables (row starts, the offset of each of the 27 neighbour blocks in a row),
     so no per-entry slot map is stored (it would take 2.3 KB per cube) unless asked for
-    (``cache_slots``). Fixed DOFs are dropped while the pattern is built, so no slicing
+    (``cache_slots``). With numba installed a compiled kernel (:mod:`sc_fem.fem.assemble_jit`)
+    adds every chunk's entries into ``data`` computing each position inline (no position array,
+    no ``np.add.at``; ``kernel=``). Fixed DOFs are dropped while the pattern is built, so no slicing
     afterwards. The consistent ``M`` shares ``K``'s ``indptr``/``indices`` (so ``K - sigma M``
     is a ``data`` operation). Memory is the output's: ``indices`` (4 bytes per nonzero) once
     and ``data`` (8 bytes per nonzero) per matrix, plus about 50 bytes per node.
@@ -32,8 +34,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from .._validate import as_float_array, as_indices
-from .elements import (CENTRE_RULE, DEFAULT_ELEMENT, check_element, cube_stiffness_chunks, moment_mass,
-                       reference_mass, stiffness_chunks)
+from .elements import (CENTRE_RULE, DEFAULT_ELEMENT, check_element, cube_mass_chunks, cube_stiffness_chunks,
+                       stiffness_chunks)
 from ..errors import InputError
 from ..lattice.cubes import HEX_CORNERS, CubeModel
 
@@ -47,8 +49,8 @@ _NODE_CHUNK = 8192
 """Nodes per chunk while the column indices are written."""
 
 # offset id (0..26) of corner b seen from corner a, shape (8, 8)
-_PAIR_OFFSET = np.ravel_multi_index((HEX_CORNERS[None, :, :] - HEX_CORNERS[:, None, :] + 1).transpose(2, 0, 1),
-                                    (3, 3, 3))
+_PAIR_OFFSET = np.ascontiguousarray(np.ravel_multi_index(
+    (HEX_CORNERS[None, :, :] - HEX_CORNERS[:, None, :] + 1).transpose(2, 0, 1), (3, 3, 3)))
 _D_PATTERN = np.tile(np.arange(3, dtype=np.int32), 192)
 """Column component d of each of a cube's 576 entries (a, c, b, d)."""
 _INTERIOR = (81 * np.arange(3)[None, :, None, None] + 3 * _PAIR_OFFSET[:, None, :, None]
@@ -90,6 +92,14 @@ class Assembler:
         first fill; ``False``: never; ``None`` (default): after the first re-fill from
         ``element_matrices`` (the repeated path, e.g. every step of a corotational integrator)
         when the positions take at most 256 MiB (about 116,000 cubes).
+    kernel : {"auto", "numba", "numpy"}
+        How each chunk of element entries is summed into the CSR ``data``: ``"numba"``, a compiled
+        loop (:mod:`sc_fem.fem.assemble_jit`, needs numba) that computes every entry's position
+        inline from the per-node tables (no per-chunk position array, no ``np.add.at``; the
+        scatter of 296,000 cubes took 0.15 s instead of 0.5 s); ``"numpy"``, the vectorized
+        positions and ``np.add.at``; ``"auto"`` (default): ``"numba"`` when numba is installed.
+        Both add the same entries in the same order, so the matrices are identical. With cached
+        positions (``cache_slots``) the compiled kernel does only the ``add.at``.
 
     Attributes
     ----------
@@ -104,6 +114,13 @@ class Assembler:
         nonzeros).
     nnz : int
         Number of stored entries.
+    kernel : {"numba", "numpy"}
+        The scatter in use (see ``kernel`` above).
+
+    Raises
+    ------
+    InputError
+        For an unknown ``kernel``, or ``kernel="numba"`` without numba.
 
     Notes
     -----
@@ -113,9 +130,12 @@ class Assembler:
     """
 
     def __init__(self, model: CubeModel, element: str = DEFAULT_ELEMENT, *, fixed_dofs=None,
-                 cache_slots: bool | None = None) -> None:
+                 cache_slots: bool | None = None, kernel: str = "auto") -> None:
+        from .._jit import choose_kernel            # optional numba, imported on first use
+
         if not isinstance(model, CubeModel):
             raise InputError(f"model must be a CubeModel, got {type(model).__name__}")
+        self.kernel = choose_kernel(kernel)
         self.model = model
         self.element = check_element(element)
         m = model.n_nodes
@@ -232,17 +252,33 @@ class Assembler:
         data = np.zeros(self.nnz)
         n = self.model.n_cubes
         store = self._cache is not None and (self._cache_all or refill)
+        jit = None
+        if self.kernel == "numba":
+            from . import assemble_jit as jit
+
+            hexes = np.ascontiguousarray(self.model.hexes)
         for s in range(0, n, _CHUNK):                                 # loop over chunks
             e = min(s + _CHUNK, n)
             got = None if self._cache is None else self._cache.get((s, e))
+            vals = np.asarray(values_of_chunk(s, e)).reshape(e - s, 576)
+            if jit is not None:
+                vals = np.ascontiguousarray(vals, dtype=np.float64)
+                if got is None and not store:                         # positions computed inline
+                    jit.fill(data, vals, hexes, s, self._interior, self._rowstart, self._coloff, self._free3,
+                             _PAIR_OFFSET, _INTERIOR)
+                    continue
             if got is None:
                 slot, keep = self._slots(s, e)
                 got = (slot.ravel(), None) if keep is None else (slot[keep], keep)
                 if store:
                     self._cache[(s, e)] = got
             slot, keep = got
-            vals = np.asarray(values_of_chunk(s, e)).reshape(e - s, 576)
-            np.add.at(data, slot, vals.ravel() if keep is None else vals[keep])
+            if jit is None:
+                np.add.at(data, slot, vals.ravel() if keep is None else vals[keep])
+            elif keep is None:
+                jit.add_at(data, slot, vals.ravel())
+            else:
+                jit.add_at_masked(data, slot, vals.ravel(), keep.ravel())
         return sp.csr_matrix((data, self.indices, self.indptr), shape=self.shape, copy=False)
 
     def stiffness(self, youngs=None, poisson=None, element_matrices=None) -> sp.csr_matrix:
@@ -285,8 +321,9 @@ class Assembler:
         Parameters
         ----------
         lumped : bool
-            ``False``: consistent mass (each cube ``m_e * reference_mass()``), on the same
-            pattern as :meth:`stiffness`. ``True``: diagonal, each of a cube's 8 nodes gets
+            ``False``: consistent mass (each cube ``m_e * reference_mass()``; a partly filled
+            cube of a ``"moments"`` model distributes ``m_e`` like its filled region,
+            :func:`~sc_fem.fem.elements.cube_mass_chunks`), on the same pattern as :meth:`stiffness`. ``True``: diagonal, each of a cube's 8 nodes gets
             ``m_e / 8`` in each direction.
         masses : array_like, shape (n,), optional
             Per-cube masses in kg; default ``model.mass`` (the voxelizer's sample mass).
@@ -296,11 +333,7 @@ class Assembler:
         if lumped:
             nm = self.model.node_masses(mass)
             return sp.diags(np.repeat(nm, 3)[self.free_dofs]).tocsr()
-        if self.model.stiffness == "moments":       # mass distributed like the filled region
-            mom = self.model.moments
-            return self._scatter(lambda s, e: moment_mass(mom[s:e], mass[s:e]))
-        mref = reference_mass().ravel()
-        return self._scatter(lambda s, e: mass[s:e, None] * mref[None, :])
+        return self._scatter(cube_mass_chunks(self.model, mass))   # partial cubes: like their filled region
 
     # ------------------------------------------------------------------ helpers
     def expand(self, u_free: np.ndarray) -> np.ndarray:

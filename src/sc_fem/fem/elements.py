@@ -475,6 +475,28 @@ def cube_stiffness_chunks(model, element: str) -> Callable[[int, int], np.ndarra
     return chunk
 
 
+def cube_mass_chunks(model, masses: np.ndarray) -> Callable[[int, int], np.ndarray]:
+    """Consistent mass matrices (flattened, kg) of a model's cubes ``s:e`` with masses ``masses``
+    (n,) kg: partly filled cubes of a ``"moments"`` model distribute their mass like their filled
+    region (:func:`moment_mass`), every other cube is ``m_e`` times the reference matrix (as the
+    stiffness: a full cube's moments give it up to round-off, at a matrix product per cube)."""
+    mref = reference_mass().ravel()
+    masses = np.asarray(masses, dtype=np.float64)
+    if model.stiffness != "moments":
+        return lambda s, e: masses[s:e, None] * mref[None, :]
+    partial = model.fraction < PARTIAL_BELOW
+    mom = model.moments
+
+    def chunk(s: int, e: int) -> np.ndarray:
+        v = masses[s:e, None] * mref[None, :]
+        part = s + np.flatnonzero(partial[s:e])
+        if len(part):
+            v[part - s] = moment_mass(mom[part], masses[part])
+        return v
+
+    return chunk
+
+
 def cube_stiffness(model, element: str) -> np.ndarray:
     """All element matrices of a model, shape (n, 24, 24), N/m (see :func:`cube_stiffness_chunks`)."""
     return cube_stiffness_chunks(model, element)(0, model.n_cubes).reshape(-1, 24, 24)

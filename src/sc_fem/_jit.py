@@ -1,0 +1,42 @@
+"""Optional numba: whether the compiled kernels can run, which one a caller gets, how they compile.
+
+The compiled kernels (:mod:`sc_fem.dynamics.xpbd_jit`, :mod:`sc_fem.fem.assemble_jit`) each have a
+numpy fallback that gives the same result; numba is the optional extra ``sc_fem[fast]``.
+"""
+
+from __future__ import annotations
+
+try:  # optional: every compiled kernel has a numpy fallback
+    import numba
+except ImportError:  # pragma: no cover - exercised when numba is absent
+    numba = None
+
+KERNELS = ("auto", "numba", "numpy")
+"""Names accepted by the ``kernel=`` options."""
+
+
+def available() -> bool:
+    """True when numba is importable (the compiled kernels can run)."""
+    return numba is not None
+
+
+def choose_kernel(kernel: str, applicable: bool = True, not_applicable: str = "") -> str:
+    """``"numba"`` or ``"numpy"`` for the requested ``kernel``: ``"auto"`` takes the compiled one
+    when numba is installed and it ``applicable`` to the caller's settings; ``"numba"`` without
+    numba, or where it does not apply (``not_applicable`` says why), is an InputError."""
+    from .errors import InputError
+
+    if kernel not in KERNELS:
+        raise InputError(f"kernel must be 'auto', 'numba' or 'numpy', got {kernel!r}")
+    if kernel == "numba":
+        if not available():
+            raise InputError("kernel='numba' needs numba (pip install 'sc_fem[fast]'); kernel='numpy' runs without it")
+        if not applicable:
+            raise InputError(not_applicable)
+        return "numba"
+    return "numba" if kernel == "auto" and applicable and available() else "numpy"
+
+
+def compiled(fn):
+    """``fn`` compiled by numba (no Python objects, no GIL, cached on disk), or None without numba."""
+    return numba.njit(cache=True, nogil=True)(fn) if numba is not None else None
