@@ -371,3 +371,39 @@ def test_lobpcg_stops_when_the_wanted_pairs_converge():
         _, _, hist = lobpcg(solver._A, X, B=M, M=solver._op, tol=tol, maxiter=400, largest=False,
                             retResidualNormsHistory=True)
     assert got.info["iterations"] < len(hist)
+
+
+def test_shifted_matrix_fast_path_equals_the_sparse_difference():
+    from sc_fem.fem.eigen import shifted
+
+    m = CubeModel.box((5, 3, 2), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
+    asm = Assembler(m, "q1i", fixed_dofs=np.arange(6))
+    K, M = asm.stiffness(), asm.mass()
+    assert K.indptr is M.indptr or np.array_equal(K.indptr, M.indptr)          # the shared pattern
+    for Mx in (M, asm.mass(lumped=True)):                                       # shared / other pattern
+        A = shifted(K, Mx, -3.5)
+        np.testing.assert_allclose(A.toarray(), (K + 3.5 * Mx).toarray(), rtol=1e-15, atol=0)
+
+
+def test_lobpcg_stops_and_says_so_when_lobpcg_gives_up(monkeypatch):
+    """A round that scipy's LOBPCG ends early without reaching the tolerance ends the solve (no
+    endless restarts), and the result says it stalled and how far from the tolerance it is."""
+    import scipy.sparse.linalg as sla
+
+    from sc_fem.fem.eigen import EigenSolver
+
+    real = sla.lobpcg
+    calls = []
+
+    def gives_up(*args, **kw):                 # stops after 2 iterations, whatever it was asked
+        calls.append(kw["maxiter"])
+        return real(*args, **{**kw, "maxiter": 2})
+
+    monkeypatch.setattr(sla, "lobpcg", gives_up)
+    m = CubeModel.box((24, 4, 4), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
+    asm = Assembler(m, "q1i", fixed_dofs=np.arange(3 * 25))
+    got = EigenSolver(asm.stiffness(), asm.mass(), method="lobpcg",
+                      near_null=rigid_body_modes(m.nodes_m, asm.free_dofs)).solve(4)
+    assert len(calls) == 1 and got.info["stalled"] and got.info["rounds"] == 1
+    assert got.info["residual_over_tol"] > 1.0
+    assert np.all(np.isfinite(got.eigenvalues)) and np.all(got.residuals > 0)
