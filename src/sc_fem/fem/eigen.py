@@ -164,12 +164,15 @@ def lobpcg_memory_estimate(n: int, nnz: int, k: int) -> int:
     return int(2.5 * 12.0 * nnz + 12.0 * 8.0 * n * (k + 8))
 
 
-SPEED_MODEL = {"shift-invert": (0.9, 1.75), "lobpcg": (3.2, 1.04)}
+SPEED_MODEL = {"shift-invert": (0.23, 1.98), "lobpcg": (0.72, 0.98)}
 """Predicted seconds for 6 modes of a lattice with ``n`` free DOFs: ``c * (n / 7776) ** p`` per
-solver, fitted to ``python benchmarks/scale.py`` on this machine class (2 cores, the default
-OpenBLAS): 7,776 DOFs 0.9 s / 3.2 s, 158,976 DOFs 175 s / 72 s (shift-invert with CHOLMOD /
-LOBPCG + smoothed-aggregation AMG). The factorization's cost grows faster than LOBPCG's, and on
-BLAS kernels this slow the crossover is near 47,000 DOFs; LOBPCG's cost also grows with ``k``."""
+solver, fitted (least squares in log-log) to cantilevers measured on this machine class (2 cores,
+the default OpenBLAS, nothing else running; 2026-11-23, after the LOBPCG changes of that day):
+shift-invert with CHOLMOD 2.55 s / 4.95 s / 9.57 s / ~100 s at 24,336 / 37,800 / 55,488 / 158,976
+DOFs; LOBPCG + smoothed-aggregation AMG 2.54 s / 4.57 s / 11.5 s / 85.7 s at 24,336 / 55,488 /
+158,976 / 931,896 DOFs (``benchmarks/scale.py`` and its ``--compare``). The factorization's cost
+grows with ~n^2, LOBPCG's with ~n, and they cross near 24,000 DOFs; LOBPCG's cost also grows
+with ``k``."""
 
 
 def predicted_seconds(method: str, n: int, k: int) -> float:
