@@ -143,7 +143,7 @@ def test_search_on_a_subset_of_points_then_constants_from_all(shared):
     np.testing.assert_allclose(m.coefficients, full.coefficients, rtol=0, atol=1e-10 * np.abs(full.coefficients).max())
     every = R.fit(x, s, remove_rigid=False, u=u, grid=(8, 8), search_points=None)
     assert len(every.search.points) == 200
-    for bad in (7, 2.5, 0):
+    for bad in (7, 2.5, 0, "64", True):
         with pytest.raises(InputError, match="search_points"):
             R.fit(x, s, remove_rigid=False, u=u, search_points=bad)
 

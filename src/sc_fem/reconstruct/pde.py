@@ -470,7 +470,8 @@ def fit(curves, times, r: float | None = None, alpha: float | None = None, remov
     data = FitData.build(aligned, uu)
     search = None
     sides = _Sides(data)
-    if search_points is not None and (int(search_points) != search_points or search_points < 8):
+    if search_points is not None and (isinstance(search_points, bool) or not isinstance(search_points, (int, np.integer))
+                                      or search_points < 8):
         raise InputError(f"search_points must be an integer >= 8 (one per space function) or None, got {search_points!r}")
     if r is None or alpha is None:
         ds = float(np.max(np.diff(s)))
