@@ -76,13 +76,13 @@ def main(argv=None) -> int:
                      f"{lag[3] / n:.1f}", f"{diff:.1e}"])
         names.append(name)
         ratios.append((each[0] / lin[0], lag[0] / lin[0]))
-    print(print_table(["model", "cubes", "steps", "linear ms/step", "corot, factor every step",
-                       "corot, lagged factor + CG (default)", "speed-up", "factorizations",
-                       "CG its per step", "rel. difference"], rows))
+    print_table(["model", "cubes", "steps", "linear ms/step", "corot, factor every step",
+                 "corot, lagged factor + CG (default)", "speed-up", "factorizations",
+                 "CG its per step", "rel. difference"], rows)
     if cheap:
         print()
-        print(print_table(["model", "setting", "step / linear step", "CG its per step",
-                           "rel. difference from factorize-every-step"], cheap))
+        print_table(["model", "setting", "step / linear step", "CG its per step",
+                     "rel. difference from factorize-every-step"], cheap)
 
     import matplotlib
     matplotlib.use("Agg")
