@@ -407,3 +407,11 @@ def test_lobpcg_stops_and_says_so_when_lobpcg_gives_up(monkeypatch):
     assert len(calls) == 1 and got.info["stalled"] and got.info["rounds"] == 1
     assert got.info["residual_over_tol"] > 1.0
     assert np.all(np.isfinite(got.eigenvalues)) and np.all(got.residuals > 0)
+
+
+def test_a_problem_too_big_for_the_budget_says_how_to_raise_it():
+    from sc_fem.fem import eigen
+
+    with pytest.raises(SolverError, match=r"does not fit in memory.*max_memory"):
+        eigen.choose_method(3_096_576, 244_974_600, 6, max_memory=8 * 2**30)
+    assert eigen.choose_method(3_096_576, 244_974_600, 6, max_memory=12 * 2**30)[0] == "lobpcg"

@@ -195,7 +195,8 @@ def choose_method(n: int, nnz: int, k: int, max_memory: float | None = None) -> 
     if not (fits_si or fits_l):
         raise SolverError(f"the eigenproblem with {n:,} DOFs does not fit in memory: a factorization needs "
                           f"~{need / 2**30:.1f} GiB and LOBPCG ~{need_l / 2**30:.1f} GiB, budget "
-                          f"{budget / 2**30:.1f} GiB; use a coarser resolution")
+                          f"{budget / 2**30:.1f} GiB (half the available memory unless max_memory is given: "
+                          f"EigenOptions(max_memory=...)); use a coarser resolution or a larger budget")
     times = f"predicted {t_si:.3g} s shift-invert vs {t_l:.3g} s LOBPCG + AMG"
     if fits_si and (t_si <= t_l or not fits_l):
         return "shift-invert", (f"{times}; factorization ~{need / 2**20:,.0f} MiB <= budget "
