@@ -387,9 +387,12 @@ def test_shifted_matrix_fast_path_equals_the_sparse_difference():
 
 def test_lobpcg_stops_and_says_so_when_lobpcg_gives_up(monkeypatch):
     """A round that scipy's LOBPCG ends early without reaching the tolerance ends the solve (no
-    endless restarts), and the result says it stalled and how far from the tolerance it is."""
+    endless restarts). Its unconverged pairs are never returned as modes: LOBPCG asked for by name
+    raises a SolverError that says it stalled and how far it got; ``"auto"`` falls back to
+    shift-invert, says why, and gets the true eigenpairs."""
     import scipy.sparse.linalg as sla
 
+    from sc_fem.fem import eigen
     from sc_fem.fem.eigen import EigenSolver
 
     real = sla.lobpcg
@@ -402,11 +405,42 @@ def test_lobpcg_stops_and_says_so_when_lobpcg_gives_up(monkeypatch):
     monkeypatch.setattr(sla, "lobpcg", gives_up)
     m = CubeModel.box((24, 4, 4), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
     asm = Assembler(m, "q1i", fixed_dofs=np.arange(3 * 25))
-    got = EigenSolver(asm.stiffness(), asm.mass(), method="lobpcg",
-                      near_null=rigid_body_modes(m.nodes_m, asm.free_dofs)).solve(4)
-    assert len(calls) == 1 and got.info["stalled"] and got.info["rounds"] == 1
-    assert got.info["residual_over_tol"] > 1.0
-    assert np.all(np.isfinite(got.eigenvalues)) and np.all(got.residuals > 0)
+    K, M, B = asm.stiffness(), asm.mass(), rigid_body_modes(m.nodes_m, asm.free_dofs)
+    with pytest.raises(SolverError, match=r"LOBPCG did not converge: relative residual .* after \d+ iterations "
+                                          r"\(stopped: stalled.*eigen='shift-invert'"):
+        EigenSolver(K, M, method="lobpcg", near_null=B).solve(4)
+    assert len(calls) == 1
+    monkeypatch.setattr(eigen, "choose_method", lambda *a: ("lobpcg", "chosen by the test"))
+    got = EigenSolver(K, M, method="auto", near_null=B).solve(4)
+    assert len(calls) == 2 and got.method == "shift-invert" and "fell back to shift-invert" in got.reason
+    assert got.info["lobpcg_failed"]["stop"] == "stalled" and got.info["lobpcg_failed"]["relative_residual"] > 1e-3
+    ref = solve_eigen(K, M, 4, method="shift-invert", backend="splu")
+    np.testing.assert_allclose(got.eigenvalues, ref.eigenvalues, rtol=1e-9)
+    assert np.all(got.residuals < 1e-8)
+
+
+def test_lobpcg_that_cannot_precondition_the_bridge_never_returns_its_modes(monkeypatch):
+    """The bridge at resolution 96: the AMG V-cycle preconditions its one-cube-thick cables so
+    poorly that LOBPCG gets nowhere (relative residuals ~1, frequencies 15 % off, returned as modes
+    before). By name it is an error; chosen automatically it falls back to shift-invert."""
+    from sc_fem.scene import Scene
+
+    scene = Scene.from_mesh("builtin:bridge", resolution=96, fix="z<min+0.05")
+    asm = Assembler(scene.model, fixed_dofs=scene.fixed_dofs)
+    K, M = asm.stiffness(), asm.mass()
+    B = rigid_body_modes(scene.model.nodes_m, asm.free_dofs)
+    with pytest.raises(SolverError, match=r"LOBPCG did not converge"):
+        solve_eigen(K, M, 4, method="lobpcg", near_null=B)
+    ref = solve_eigen(K, M, 4, method="shift-invert")
+    assert np.all(ref.residuals < 1e-6)
+    f = np.sqrt(ref.eigenvalues) / (2 * np.pi)
+    assert np.all((f > 10.0) & (f < 12.0))                       # the cables' first modes, 11.2-11.6 Hz
+    from sc_fem.fem import eigen
+
+    monkeypatch.setattr(eigen, "choose_method", lambda *a: ("lobpcg", "chosen by the test"))
+    out = modal(scene, n_modes=4, eigen="auto")
+    assert out.eigen["method"] == "shift-invert" and "fell back to shift-invert" in out.eigen["reason"]
+    np.testing.assert_allclose(out.frequencies, f, rtol=1e-6)
 
 
 def test_a_problem_too_big_for_the_budget_says_how_to_raise_it():
