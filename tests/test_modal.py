@@ -257,7 +257,10 @@ def test_auto_method_picks_the_solver_predicted_faster_here():
     assert method == "shift-invert" and "predicted" in reason
     cross = [n for n in (10_000, 20_000, 30_000, 40_000, 80_000, 160_000)
              if eigen.choose_method(n, 81 * n, 6, max_memory=big)[0] == "lobpcg"]
-    assert cross and cross[0] == 30_000                   # both took 2.5 s at 24,336 DOFs on this machine
+    # both took 2.5 s at 24,336 DOFs on this machine; LOBPCG with the compiled products 2.4 s at 37,800
+    from sc_fem import _jit
+
+    assert cross and cross[0] == (20_000 if _jit.available() else 30_000)
 
 
 def test_old_names_warn_and_contradictions_are_errors():

@@ -40,3 +40,27 @@ def choose_kernel(kernel: str, applicable: bool = True, not_applicable: str = ""
 def compiled(fn):
     """``fn`` compiled by numba (no Python objects, no GIL, cached on disk), or None without numba."""
     return numba.njit(cache=True, nogil=True)(fn) if numba is not None else None
+
+
+def compiled_parallel(fn):
+    """``fn`` compiled by numba with its :data:`prange` loops split over the cores (cached on disk),
+    or None without numba."""
+    return numba.njit(cache=True, nogil=True, parallel=True)(fn) if numba is not None else None
+
+
+prange = numba.prange if numba is not None else range
+"""``numba.prange`` (a loop whose iterations the compiled kernel runs in parallel), or ``range``."""
+
+
+def blas_single_threaded():
+    """A context in which the BLAS (OpenBLAS, MKL) runs on one thread, while compiled parallel
+    kernels use the cores: OpenBLAS's threads spin between its calls and starve numba's (LOBPCG at
+    158,976 DOFs took 13.4 s with both on 2 threads, 9.0 s with the BLAS on one). Needs
+    threadpoolctl (installed with the ``fast`` extra); without it, a context that changes nothing."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - exercised when threadpoolctl is absent
+        from contextlib import nullcontext
+
+        return nullcontext()
+    return threadpool_limits(limits=1, user_api="blas")

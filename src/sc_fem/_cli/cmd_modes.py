@@ -45,7 +45,7 @@ def register(sub) -> None:
     p.add_argument("--keep-lattice", action="store_true", help="also store the lattice and the node modes")
     p.add_argument("--eigensolver", "--solver", dest="eigensolver", choices=("auto", "shift-invert", "lobpcg"),
                    default="auto", help="default auto: the one predicted faster on this machine (shift-invert with "
-                                        "a Cholesky factor below ~24k DOFs, else LOBPCG + AMG) whose memory fits")
+                                        "a Cholesky factor below ~18k DOFs (~24k without numba), else LOBPCG + AMG) whose memory fits")
     p.add_argument("--backend", choices=("auto", "cholmod", "cholespy", "splu"), default="auto",
                    help="factorization backend for shift-invert (default: the fastest installed)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",

@@ -167,20 +167,24 @@ def lobpcg_memory_estimate(n: int, nnz: int, k: int) -> int:
     return int(2.5 * 12.0 * nnz + 12.0 * 8.0 * n * (k + 8))
 
 
-SPEED_MODEL = {"shift-invert": (0.23, 1.98), "lobpcg": (0.72, 0.98)}
+SPEED_MODEL = {"shift-invert": (0.23, 1.98), "lobpcg": (0.72, 0.98), "lobpcg-numba": (0.52, 0.98)}
 """Predicted seconds for 6 modes of a lattice with ``n`` free DOFs: ``c * (n / 7776) ** p`` per
 solver, fitted (least squares in log-log) to cantilevers measured on this machine class (2 cores,
-the default OpenBLAS, nothing else running; 2026-11-23, after the LOBPCG changes of that day):
+the default OpenBLAS, nothing else running; ``benchmarks/scale.py`` and its ``--compare``):
 shift-invert with CHOLMOD 2.55 s / 4.95 s / 9.57 s / ~100 s at 24,336 / 37,800 / 55,488 / 158,976
-DOFs; LOBPCG + smoothed-aggregation AMG 2.54 s / 4.57 s / 11.5 s / 85.7 s at 24,336 / 55,488 /
-158,976 / 931,896 DOFs (``benchmarks/scale.py`` and its ``--compare``). The factorization's cost
-grows with ~n^2, LOBPCG's with ~n, and they cross near 24,000 DOFs; LOBPCG's cost also grows
-with ``k``."""
+DOFs; LOBPCG + smoothed-aggregation AMG with scipy's products 2.54 s / 4.57 s / 11.5 s / 85.7 s at
+24,336 / 55,488 / 158,976 / 931,896 DOFs (2026-11-23), and with the compiled row-parallel products
+(``"lobpcg-numba"``, used when numba is installed) 2.42 s / 9.4-10.2 s at 37,800 / 158,976 DOFs
+(2026-11-24). The factorization's cost grows with ~n^2, LOBPCG's with ~n; they cross near 24,000
+DOFs (~18,000 with numba). LOBPCG's cost also grows with ``k``."""
 
 
 def predicted_seconds(method: str, n: int, k: int) -> float:
-    """Seconds :data:`SPEED_MODEL` predicts for ``k`` modes of ``n`` free DOFs."""
-    c, p = SPEED_MODEL[method]
+    """Seconds :data:`SPEED_MODEL` predicts for ``k`` modes of ``n`` free DOFs (LOBPCG: with the
+    compiled products when numba is installed)."""
+    from .._jit import available
+
+    c, p = SPEED_MODEL["lobpcg-numba" if method == "lobpcg" and available() else method]
     t = c * (max(n, 1) / 7776.0) ** p
     return t * (max(k, 6) / 6.0 if method == "lobpcg" else 1.0)
 
@@ -244,13 +248,28 @@ class BlockVCycle:
     products on the whole block; the coarsest level is a dense Cholesky solve. Column by column
     the result agrees with pyamg's ``solve(b, x0=0, maxiter=1, cycle="V")`` with the same
     smoothers (tested to 1e-10); it is symmetric positive definite. Its cost is the sparse block
-    products (scipy's, single-threaded: 38 ms for 10 vectors at 158,976 DOFs, ~6 per LOBPCG
-    iteration); float32 values did not make them faster."""
+    products (~6 per LOBPCG iteration), done by :class:`sc_fem.fem.spmm.BlockProduct` (rows split
+    over the cores when numba is installed: 26 ms instead of scipy's 41 ms for 10 vectors at
+    158,976 DOFs); float32 values did not make them faster.
 
-    def __init__(self, ml) -> None:
+    Parameters
+    ----------
+    ml : pyamg.MultilevelSolver
+        The hierarchy (its levels' ``A``, ``R``, ``P``; Jacobi smoothers set up by pyamg).
+    kernel : {"auto", "numba", "numpy"}
+        The block products' kernel (:class:`sc_fem.fem.spmm.BlockProduct`).
+    """
+
+    def __init__(self, ml, kernel: str = "auto") -> None:
         from pyamg.relaxation.smoothing import rho_D_inv_A
 
+        from .spmm import BlockProduct
+
         self.levels = ml.levels
+        # every level's A, R and P as row-parallel block products (pyamg keeps R and P as BSR)
+        self.A = [BlockProduct(lvl.A, kernel) for lvl in self.levels[:-1]]
+        self.R = [BlockProduct(lvl.R, kernel) for lvl in self.levels[:-1]]
+        self.P = [BlockProduct(lvl.P, kernel) for lvl in self.levels[:-1]]
         self.dinv, self.omega = [], []
         for lvl in self.levels[:-1]:
             d = lvl.A.diagonal()
@@ -265,13 +284,13 @@ class BlockVCycle:
     def _cycle(self, i: int, b: np.ndarray) -> np.ndarray:
         if i == len(self.levels) - 1:
             return self.coarse(b)
-        A, w, Dinv = self.levels[i].A, self.omega[i], self.dinv[i]
+        A, w, Dinv = self.A[i], self.omega[i], self.dinv[i]
         x = w * Dinv * b                                   # first sweep from x = 0
         for _ in range(self.nu - 1):                       # pre-smoothing (a couple of sweeps)
-            x += w * Dinv * (b - A @ x)
-        x += self.levels[i].P @ self._cycle(i + 1, self.levels[i].R @ (b - A @ x))
+            x += w * Dinv * (b - A(x))
+        x += self.P[i](self._cycle(i + 1, self.R[i](b - A(x))))
         for _ in range(self.nu):                           # post-smoothing
-            x += w * Dinv * (b - A @ x)
+            x += w * Dinv * (b - A(x))
         return x
 
     def __call__(self, b: np.ndarray) -> np.ndarray:
@@ -453,7 +472,10 @@ class EigenSolver:
         else:
             import pyamg
 
+            from .spmm import BlockProduct
+
             self._A = A
+            self._products = BlockProduct(A), BlockProduct(self.M)     # row-parallel when numba is there
             # the rigid-body modes are the exact near-null space of K: pyamg's default smoothing of
             # the candidates (4 block Gauss-Seidel sweeps) adds nothing but time (5 s at 931,896 DOFs)
             kw = {"improve_candidates": None} if self.near_null is not None else {}
@@ -506,7 +528,13 @@ class EigenSolver:
         X = np.random.default_rng(self.seed).standard_normal((self.n, m))
         if B is not None:                          # start in the rigid space: those modes converge at once
             X[:, :min(B.shape[1], m)] = B[:, :min(B.shape[1], m)]
-        with warnings.catch_warnings():
+        from contextlib import nullcontext
+
+        from .._jit import blas_single_threaded
+
+        Ap, Mp = self._products
+        parallel = "numba" in (Ap.kernel, Mp.kernel)
+        with warnings.catch_warnings(), (blas_single_threaded() if parallel else nullcontext()):
             warnings.simplefilter("ignore")        # lobpcg warns when it stops at maxiter; we report residuals
             # lobpcg's tol is absolute on ||A x - mu M x|| (x M-normalized): scale it by the shift, the
             # smallest eigenvalue scale we know, times the typical ||M x|| ~ sqrt(mean diag M)
@@ -526,12 +554,12 @@ class EigenSolver:
             stop, prev = "converged", None
             while True:
                 asked = min(LOBPCG_ROUNDS[rounds > 0], self.maxiter - its)
-                lam, V, hist = lobpcg(self._A, X, B=self.M, M=self._op, tol=tol_abs, maxiter=asked,
+                lam, V, hist = lobpcg(Ap.operator(), X, B=Mp.operator(), M=self._op, tol=tol_abs, maxiter=asked,
                                       largest=False, retResidualNormsHistory=True)
                 its, rounds = its + len(hist), rounds + 1
                 order = np.argsort(lam)
                 lam, V = lam[order], V[:, order]
-                R = self._A @ V[:, :k] - (self.M @ V[:, :k]) * lam[None, :k]
+                R = Ap(V[:, :k]) - Mp(V[:, :k]) * lam[None, :k]
                 worst = float(np.linalg.norm(R, axis=0).max()) / tol_abs
                 if worst <= 1.0:
                     break
