@@ -371,7 +371,7 @@ def test_lobpcg_stops_when_the_wanted_pairs_converge():
     X[:, :6] = B
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        _, _, hist = lobpcg(solver._A, X, B=M, M=solver._op, tol=tol, maxiter=400, largest=False,
+        _, _, hist = lobpcg(solver._products[0].A, X, B=M, M=solver._op, tol=tol, maxiter=400, largest=False,
                             retResidualNormsHistory=True)
     assert got.info["iterations"] < len(hist)
 
@@ -420,6 +420,28 @@ def test_lobpcg_stops_and_says_so_when_lobpcg_gives_up(monkeypatch):
     ref = solve_eigen(K, M, 4, method="shift-invert", backend="splu")
     np.testing.assert_allclose(got.eigenvalues, ref.eigenvalues, rtol=1e-9)
     assert np.all(got.residuals < 1e-8)
+
+
+def test_lobpcg_rounds_that_make_no_progress_end_the_solve(monkeypatch):
+    """Full rounds that leave the residual where it was end the solve after the second round
+    ("slow"), instead of restarting until maxiter (400 iterations = 49 rounds)."""
+    import scipy.sparse.linalg as sla
+
+    from sc_fem.fem.eigen import EigenSolver
+
+    calls = []
+
+    def no_progress(A, X, B=None, M=None, tol=None, maxiter=20, **kw):   # a full round, X unchanged
+        calls.append(maxiter)
+        return np.ones(X.shape[1]), X, [np.ones(X.shape[1])] * maxiter
+
+    monkeypatch.setattr(sla, "lobpcg", no_progress)
+    m = CubeModel.box((24, 4, 4), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
+    asm = Assembler(m, "q1i", fixed_dofs=np.arange(3 * 25))
+    with pytest.raises(SolverError, match=r"stopped: slow"):
+        EigenSolver(asm.stiffness(), asm.mass(), method="lobpcg",
+                    near_null=rigid_body_modes(m.nodes_m, asm.free_dofs)).solve(4)
+    assert len(calls) == 2
 
 
 def test_lobpcg_that_cannot_precondition_the_bridge_never_returns_its_modes(monkeypatch):
