@@ -62,6 +62,23 @@ def test_compiled_block_product_matches_the_loop_oracle_and_scipy(name, k):
     np.testing.assert_array_equal(P.operator().matmat(X), P(X))
 
 
+@pytest.mark.parametrize("kernel", [pytest.param("numba", marks=needs_numba), "numpy"])
+@pytest.mark.parametrize("name", ["square", "unsorted"])
+def test_jacobi_sweep_matches_the_loop_oracle(kernel, name):
+    """``X + wd (B - A X)`` in one pass (compiled) or by scipy: a loop oracle, and the very bits
+    of the numpy expression the V-cycle used before."""
+    A = _matrices()[name]
+    rng = np.random.default_rng(3)
+    X, Bv, wd = rng.standard_normal((60, 4)), rng.standard_normal((60, 4)), rng.uniform(0.1, 1.0, 60)
+    P = BlockProduct(A, kernel=kernel)
+    ref = X + wd[:, None] * (Bv - loop_oracle(A, X))
+    for Xin in (X, np.asfortranarray(X)):
+        got = P.jacobi(Xin, Bv, wd)
+        assert got.shape == X.shape
+        np.testing.assert_allclose(got, ref, rtol=1e-13, atol=1e-13 * np.abs(ref).max())
+        np.testing.assert_array_equal(got, X + wd[:, None] * (Bv - np.asarray(A @ X)))
+
+
 def test_kernel_choice():
     small = sp.identity(10, format="csr")
     assert BlockProduct(small).kernel == "numpy"                    # below MIN_NNZ: scipy

@@ -36,6 +36,22 @@ def _csr_block_py(indptr, indices, data, X, Y):  # pragma: no cover - compiled
 _csr_block = compiled_parallel(_csr_block_py)
 
 
+def _csr_jacobi_py(indptr, indices, data, X, B, wd, Y):  # pragma: no cover - compiled
+    n, k = Y.shape
+    for i in prange(n):                       # Y = X + wd (B - A X), row by row, one pass
+        for c in range(k):
+            Y[i, c] = 0.0
+        for p in range(indptr[i], indptr[i + 1]):
+            j, a = indices[p], data[p]
+            for c in range(k):
+                Y[i, c] += a * X[j, c]
+        for c in range(k):
+            Y[i, c] = X[i, c] + wd[i] * (B[i, c] - Y[i, c])
+
+
+_csr_jacobi = compiled_parallel(_csr_jacobi_py)
+
+
 class BlockProduct:
     """``X -> A @ X`` for a sparse ``A`` (n, m) and ``X`` (m,) or (m, k), compiled and parallel
     when numba is installed.
@@ -68,6 +84,17 @@ class BlockProduct:
             return np.asarray(self.A @ X)
         Y = np.empty((self.shape[0], X.shape[1]))
         _csr_block(self.A.indptr, self.A.indices, self.A.data, np.ascontiguousarray(X), Y)
+        return Y
+
+    def jacobi(self, X: np.ndarray, B: np.ndarray, wd: np.ndarray) -> np.ndarray:
+        """One damped Jacobi sweep ``X + wd (B - A X)`` for a square ``A``, with ``X`` and ``B`` of
+        shape (n, k) and the row weights ``wd`` (n,) (the damping over the diagonal); compiled, the
+        product and the update are one pass over the rows (no temporaries)."""
+        if self.kernel != "numba":
+            return X + wd[:, None] * (B - self.A @ X)
+        Y = np.empty((self.shape[0], X.shape[1]))
+        _csr_jacobi(self.A.indptr, self.A.indices, self.A.data, np.ascontiguousarray(X, dtype=np.float64),
+                    np.ascontiguousarray(B, dtype=np.float64), np.ascontiguousarray(wd, dtype=np.float64), Y)
         return Y
 
     def operator(self) -> LinearOperator:
