@@ -22,7 +22,7 @@ MIN_NNZ = 500_000
 milliseconds' work, where starting the threads is not repaid)."""
 
 
-def _csr_block_py(indptr, indices, data, X, Y):  # pragma: no cover - compiled
+def _csr_block_py(indptr, indices, data, X, Y, B, wd, sweep):  # pragma: no cover - compiled
     n, k = Y.shape
     for i in prange(n):                       # rows split over the cores
         for c in range(k):
@@ -31,25 +31,12 @@ def _csr_block_py(indptr, indices, data, X, Y):  # pragma: no cover - compiled
             j, a = indices[p], data[p]
             for c in range(k):
                 Y[i, c] += a * X[j, c]
+        if sweep:                             # a Jacobi sweep: Y = X + wd (B - A X), in the same pass
+            for c in range(k):
+                Y[i, c] = X[i, c] + wd[i] * (B[i, c] - Y[i, c])
 
 
 _csr_block = compiled_parallel(_csr_block_py)
-
-
-def _csr_jacobi_py(indptr, indices, data, X, B, wd, Y):  # pragma: no cover - compiled
-    n, k = Y.shape
-    for i in prange(n):                       # Y = X + wd (B - A X), row by row, one pass
-        for c in range(k):
-            Y[i, c] = 0.0
-        for p in range(indptr[i], indptr[i + 1]):
-            j, a = indices[p], data[p]
-            for c in range(k):
-                Y[i, c] += a * X[j, c]
-        for c in range(k):
-            Y[i, c] = X[i, c] + wd[i] * (B[i, c] - Y[i, c])
-
-
-_csr_jacobi = compiled_parallel(_csr_jacobi_py)
 
 
 class BlockProduct:
@@ -83,7 +70,8 @@ class BlockProduct:
         if self.kernel != "numba" or X.ndim != 2:
             return np.asarray(self.A @ X)
         Y = np.empty((self.shape[0], X.shape[1]))
-        _csr_block(self.A.indptr, self.A.indices, self.A.data, np.ascontiguousarray(X), Y)
+        _csr_block(self.A.indptr, self.A.indices, self.A.data, np.ascontiguousarray(X), Y,
+                   np.empty((0, 0)), np.empty(0), False)
         return Y
 
     def jacobi(self, X: np.ndarray, B: np.ndarray, wd: np.ndarray) -> np.ndarray:
@@ -93,8 +81,8 @@ class BlockProduct:
         if self.kernel != "numba":
             return X + wd[:, None] * (B - self.A @ X)
         Y = np.empty((self.shape[0], X.shape[1]))
-        _csr_jacobi(self.A.indptr, self.A.indices, self.A.data, np.ascontiguousarray(X, dtype=np.float64),
-                    np.ascontiguousarray(B, dtype=np.float64), np.ascontiguousarray(wd, dtype=np.float64), Y)
+        _csr_block(self.A.indptr, self.A.indices, self.A.data, np.ascontiguousarray(X, dtype=np.float64), Y,
+                   np.ascontiguousarray(B, dtype=np.float64), np.ascontiguousarray(wd, dtype=np.float64), True)
         return Y
 
     def operator(self) -> LinearOperator:
