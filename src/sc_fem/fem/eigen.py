@@ -289,21 +289,20 @@ class BlockVCycle:
         self.A = [BlockProduct(lvl.A, kernel) for lvl in self.levels[:-1]]
         self.R = [BlockProduct(lvl.R, kernel) for lvl in self.levels[:-1]]
         self.P = [BlockProduct(lvl.P, kernel) for lvl in self.levels[:-1]]
-        self.dinv, self.omega = [], []
+        self.wd = []                                       # per level: the Jacobi weights omega / (rho d_ii)
         for lvl in self.levels[:-1]:
             d = lvl.A.diagonal()
             dinv = np.where(d != 0, 1.0 / np.where(d != 0, d, 1.0), 0.0)
             # pyamg's estimate of the spectral radius of D^-1 A, cached on the matrix when pyamg set
             # up its own Jacobi smoothers: the same number, not a second Krylov run per level
-            self.dinv.append(dinv)
-            self.omega.append(JACOBI[1]["omega"] / rho_D_inv_A(lvl.A))
+            self.wd.append(JACOBI[1]["omega"] / rho_D_inv_A(lvl.A) * dinv)
         self.coarse = _coarse_solver(self.levels[-1].A.toarray())
         self.nu = JACOBI[1]["iterations"]
 
     def _cycle(self, i: int, b: np.ndarray) -> np.ndarray:
         if i == len(self.levels) - 1:
             return self.coarse(b)
-        A, wd = self.A[i], self.omega[i] * self.dinv[i]
+        A, wd = self.A[i], self.wd[i]
         x = wd[:, None] * b                                # first sweep from x = 0
         for _ in range(self.nu - 1):                       # pre-smoothing (a couple of sweeps)
             x = A.jacobi(x, b, wd)
@@ -594,8 +593,8 @@ class EigenSolver:
                 if stop != "converged":
                     break
                 X, prev = V, worst
-        return V, {"iterations": its, "rounds": rounds, "stop": stop, "stalled": stop == "stalled",
-                   "stalled_rounds": stalls, "residual_over_tol": worst}
+        return V, {"iterations": its, "rounds": rounds, "stop": stop, "stalled_rounds": stalls,
+                   "residual_over_tol": worst}
 
     def solve(self, k: int) -> EigenResult:
         """The ``k`` smallest eigenpairs (``1 <= k < n``), refined by Rayleigh--Ritz, with residuals."""
