@@ -20,7 +20,7 @@ def test_npz_animation_with_gravity_and_impulse(tmp_path, capsys):
                "--duration", "0.02", "--dt", "0.001", "--fps", "1000", "-o", str(out)])
     assert rc == 0
     text = capsys.readouterr().out
-    for key in ("steps", "time per step", "energy drift", "wrote"):
+    for key in ("steps", "time per step", "energy created", "energy at the end", "wrote"):
         assert key in text
     a = load_animation(out)
     assert a.positions.shape == (21, len(a.rest_vertices), 3) and a.positions.dtype == np.float64

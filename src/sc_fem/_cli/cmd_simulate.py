@@ -33,10 +33,18 @@ def register(sub) -> None:
     add_material_args(p)
     add_fix_args(p)
     p.add_argument("--duration", type=float, required=True, help="simulated time, s")
-    p.add_argument("--dt", type=float, required=True, help="time step, s")
-    p.add_argument("--method", choices=("newmark", "corotational", "central", "xpbd"), default="newmark",
-                   help="implicit Newmark (default), corotational Newmark (large rotations), explicit central, "
-                        "or XPBD (gravity and --fix only; --dt is then the frame step, see --substeps)")
+    p.add_argument("--dt", type=float, default=None,
+                   help="time step, s; it must divide the frame step 1/--fps (default: half a frame for the implicit "
+                        "methods, 0.9 x the stability limit for central, a frame for xpbd)")
+    p.add_argument("--method", choices=("auto", "ipc", "newmark", "corotational", "central", "xpbd"), default="auto",
+                   help="auto (default): ipc when there is an obstacle (--ground/--sphere/--box), else newmark. "
+                        "ipc: backward Euler with barrier contact and friction inside the step (never "
+                        "interpenetrates, stable at any dt); newmark: implicit Newmark; corotational: Newmark for "
+                        "large rotations; central: explicit; xpbd: gravity and --fix only, --dt is the frame step "
+                        "(see --substeps). newmark/corotational/central push vertices out of obstacles after each "
+                        "step instead, which can add energy")
+    p.add_argument("--friction", type=float, default=0.3,
+                   help="Coulomb friction coefficient of the ipc contacts (default 0.3; 0: frictionless)")
     p.add_argument("--substeps", type=int, default=20, help="XPBD substeps per --dt step (default 20)")
     p.add_argument("--iterations", type=int, default=1, help="XPBD solver iterations per substep (default 1)")
     p.add_argument("--constraints", choices=("neohookean", "corotational", "distance"), default="neohookean",
@@ -77,9 +85,15 @@ def run(args) -> int:
 
     out = Path(args.output)                             # its extension was checked by main before any work
     for name, flag in (("duration", "--duration"), ("dt", "--dt"), ("fps", "--fps"), ("magnify", "--exaggerate")):
-        positive_scalar(getattr(args, name), flag)          # checked before any work, named as typed
-    if int(round(args.duration / args.dt)) < 1:
+        if getattr(args, name) is not None:
+            positive_scalar(getattr(args, name), flag)      # checked before any work, named as typed
+    if args.dt is not None and int(round(args.duration / args.dt)) < 1:
         raise InputError(f"--duration {args.duration:g} s is shorter than one step of --dt {args.dt:g} s")
+    if args.dt is not None and args.method != "xpbd":
+        ratio = 1.0 / (args.fps * args.dt)
+        if abs(ratio - max(1, round(ratio))) > 1e-6 * ratio:
+            raise InputError(f"--dt {args.dt:g} s does not divide the frame step 1/--fps = {1 / args.fps:.6g} s "
+                             f"(the frames would not be stored at {args.fps:g} fps): give a --dt that divides it")
     timings: dict = {}
     q = args.quiet
     progress = not (q or args.no_progress)
@@ -89,7 +103,7 @@ def run(args) -> int:
         rec = run_simulation(
             scene, dt=args.dt, duration=args.duration, method=args.method, fps=args.fps, gravity=args.gravity,
             gust=args.gust, ground=args.ground, sphere=args.sphere, box=args.box, impulses=args.impulse,
-            rayleigh=args.rayleigh, newmark=NewmarkOptions(beta=args.beta, gamma=args.gamma, alpha=args.hht_alpha),
+            friction=args.friction, rayleigh=args.rayleigh, newmark=NewmarkOptions(beta=args.beta, gamma=args.gamma, alpha=args.hht_alpha),
             xpbd=XPBDOptions(substeps=args.substeps, iterations=args.iterations, constraints=args.constraints,
                              damping=args.xpbd_damping), element=args.element, up=args.up, progress=progress)
     with stage("write", timings, q):
@@ -103,6 +117,13 @@ def run(args) -> int:
     return 0
 
 
+def energy_line(rec) -> str:
+    """The energy of a run's last frame by kind, J."""
+    p = rec.parts
+    keys = ("kinetic", "elastic", "gravity", "contact", "work", "dissipated")
+    return ", ".join(f"{k} {p[k][-1]:.4g}" for k in keys if k in p and len(p[k])) + " J"
+
+
 def run_summary(rec) -> str:
     """The lines ``sc-fem simulate`` prints about a run."""
     info = rec.info
@@ -113,10 +134,16 @@ def run_summary(rec) -> str:
     rows = [("method", f"{info['method']} ({kind})"),
             ("steps", f"{n:,} x {dt:g} s = {n * dt:g} s ({len(rec.times)} frames)"),
             ("time per step", f"{1e3 * rec.seconds_per_step:.3g} ms (setup {rec.setup_seconds:.3g} s)"),
-            ("energy drift", f"{rec.energy_drift:+.3e} of max(T + U) = {rec.mechanical.max():.4g} J"),
+            ("energy at the end", energy_line(rec)),
+            ("energy created", f"{rec.energy_gain:.3e} of the energy scale {rec.energy_scale:.4g} J at most "
+                               "(beyond the loads' work; 0 for a stable run)"),
             ("max vertex displacement", f"{disp:.4g} model units")]
     if info["dt_crit"] is not None:
         rows.append(("dt / dt_crit", f"{dt / info['dt_crit']:.3g} (dt_crit = {info['dt_crit']:.4g} s)"))
+    if info.get("newton_iterations") is not None and info["method"] == "ipc":
+        rows.append(("contact", f"{info['contact_steps']} steps in contact, {info['newton_iterations']} Newton "
+                                f"iterations, friction {info['friction']}, dhat {info['dhat']:.3g} model units, "
+                                "no vertex ever through an obstacle"))
     if info["contact_tol"] is not None:
         rows.append(("max contact depth", f"{max(rec.max_contact_depth, 0.0):.3g} model units "
                                           f"(tolerance {info['contact_tol']:.3g})"))

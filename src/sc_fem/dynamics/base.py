@@ -29,16 +29,18 @@ from .loads import LoadSet
 
 @dataclass(frozen=True)
 class Energy:
-    """Energy of a state, J: ``kinetic``, ``elastic`` (0 at rest) and ``gravity`` potential
-    (``-f_g . u``, 0 at rest); ``total`` is their sum."""
+    """Energy of a state, J: ``kinetic``, ``elastic`` (0 at rest), ``gravity`` potential
+    (``-f_g . u``, 0 at rest) and ``contact`` (the barrier potential of
+    :class:`~sc_fem.dynamics.ipc.IPC`, 0 without contact); ``total`` is their sum."""
 
     kinetic: float
     elastic: float
     gravity: float
+    contact: float = 0.0
 
     @property
     def total(self) -> float:
-        return self.kinetic + self.elastic + self.gravity
+        return self.kinetic + self.elastic + self.gravity + self.contact
 
     @property
     def mechanical(self) -> float:

@@ -12,10 +12,15 @@ Methods (one module each; all step a :class:`State` and are subclasses of
                  the corotational (warped-stiffness) model for large rotations.
 ``"central"``    :class:`~sc_fem.dynamics.central.CentralDifference` -- explicit central
                  differences with lumped mass, stable for ``dt <= dt_crit = 2 / omega_max``.
+``"ipc"``        :class:`~sc_fem.dynamics.ipc.IPC` -- backward Euler as the minimisation of
+                 the incremental potential with barrier contact and friction on the source
+                 mesh (stable at any ``dt``, never interpenetrating); linear backward Euler
+                 (one back-solve) while nothing is within the contact distance.
 ==============  ==========================================================================
 
 Loads (gravity, forces and pressures on the source mesh) are in :mod:`.loads`, obstacles
-(ground, sphere, box) in :mod:`.contact`. :func:`simulate` is the driver: a generator of states
+(ground, sphere, box) in :mod:`.contact` (projected after each step) and :mod:`.ipc` (inside
+the step). :func:`simulate` is the driver: a generator of states
 that computes the energy of each, and stops with :class:`~sc_fem.errors.InstabilityError` (naming
 the step and ``dt_crit``) when the run blows up. :func:`record` collects a run into a
 :class:`Recording`.
@@ -51,9 +56,13 @@ class State:
     step : int
         Steps taken.
     energy : float
-        Kinetic + elastic + gravity potential energy, J (NaN until :func:`simulate` fills it).
+        Kinetic + elastic + gravity + contact energy, J (NaN until :func:`simulate` fills it).
     mechanical : float
         Kinetic + elastic energy, J (>= 0; NaN until :func:`simulate` fills it).
+    parts : Energy or None
+        The energy by kind (:class:`~sc_fem.dynamics.base.Energy`), filled by :func:`simulate`.
+    work : float
+        Work done by the loads since the start, J (trapezoidal rule; NaN until filled).
     """
 
     time: float
@@ -63,9 +72,11 @@ class State:
     step: int = 0
     energy: float = float("nan")
     mechanical: float = float("nan")
+    parts: object = None
+    work: float = float("nan")
 
 
-METHODS = ("newmark", "corotational", "central", "xpbd")
+METHODS = ("newmark", "corotational", "central", "xpbd", "ipc")
 """Method names accepted by :func:`make_integrator` (and ``sc-fem simulate --method``)."""
 
 
@@ -82,6 +93,8 @@ def make_integrator(method: str, model, dt: float, **kw):
         from .corotational import Corotational as cls
     elif method == "xpbd":
         from .xpbd_integrator import XPBDIntegrator as cls
+    elif method == "ipc":
+        from .ipc import IPC as cls
     elif method == "central":
         from .central import CentralDifference as cls
         for k in ("beta", "gamma", "alpha", "iterations"):
@@ -112,15 +125,17 @@ def simulate(integrator, n_steps: int, *, every: int = 1, check: bool = True, gr
              progress: bool = False) -> Iterator[State]:
     """Run ``integrator`` for ``n_steps`` steps, yielding states with their energy filled in.
 
-    Yields the initial state, then every ``every``-th state and always the last one.
+    Yields the initial state, then every ``every``-th state and always the last one; each with
+    its energy by kind (``parts``) and the work the loads other than gravity (whose potential is
+    in the energy) have done since the start (``work``, J, trapezoidal rule over every step: ``sum 1/2 (f_k + f_k+1) . (u_k+1 - u_k)``), so that
+    ``energy - energy_0 - work`` is the energy the run created (> 0) or dissipated (< 0).
 
     Blow-up check (``check=True``): the run stops with
     :class:`~sc_fem.errors.InstabilityError` (naming the step, the time and ``dt_crit``) when
     the state becomes non-finite or the mechanical energy ``T + U`` exceeds
-    ``growth * (T_0 + U_0 + |W_ext|)``, ``W_ext`` the work done by the loads so far (trapezoidal
-    rule). A stable run satisfies ``T + U <= T_0 + U_0 + W_ext`` (energy balance), so this only
-    fires on runaway growth. With ``check=False`` the energy and the load work are evaluated only
-    for the yielded states.
+    ``growth * (T_0 + U_0 + |W_ext| + |V_g|)``, ``V_g`` the gravity potential. A stable run
+    satisfies ``T + U <= T_0 + U_0 + W_ext - V_g`` (energy balance), so this only fires on
+    runaway growth. With ``check=False`` the energy is evaluated only for the yielded states.
     """
     from ..errors import InputError, InstabilityError
 
@@ -133,9 +148,9 @@ def simulate(integrator, n_steps: int, *, every: int = 1, check: bool = True, gr
     e0 = e.mechanical
     work = 0.0
     loads = integrator.loads
-    f_prev = loads.force(st.time) if check else None
+    f_prev = _nonconservative(loads, st.time)
     u_prev = st.u
-    yield replace(st, energy=e.total, mechanical=e.mechanical)
+    yield replace(st, energy=e.total, mechanical=e.mechanical, parts=e, work=0.0)
     bar = None
     if progress:
         from tqdm import tqdm
@@ -147,8 +162,8 @@ def simulate(integrator, n_steps: int, *, every: int = 1, check: bool = True, gr
             with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
                 st = integrator.step()
                 finite = bool(np.all(np.isfinite(st.u)) and np.all(np.isfinite(st.v)))
-                if check and finite:
-                    f = loads.force(st.time)
+                if finite:
+                    f = _nonconservative(loads, st.time)
                     work += 0.5 * float(np.sum((f + f_prev) * (st.u - u_prev)))
                     f_prev, u_prev = f, st.u
                 if check or out:
@@ -156,18 +171,25 @@ def simulate(integrator, n_steps: int, *, every: int = 1, check: bool = True, gr
             if check:
                 if not finite or not math.isfinite(e.total):
                     raise InstabilityError(_blowup_message(integrator, st.time, k, "non-finite displacements"))
-                if e.mechanical > growth * (e0 + abs(work)) + 1e-300:
+                bound = growth * (e0 + abs(work) + abs(e.gravity))
+                if e.mechanical > bound + 1e-300:
                     raise InstabilityError(_blowup_message(
                         integrator, st.time, k,
-                        f"energy {e.mechanical:.4g} J grew beyond {growth:g} x (initial energy + load work) "
-                        f"= {growth * (e0 + abs(work)):.4g} J"))
+                        f"energy {e.mechanical:.4g} J grew beyond {growth:g} x (initial energy + load work + "
+                        f"gravity potential) = {bound:.4g} J"))
             if bar is not None:
                 bar.update()
             if out:
-                yield replace(st, energy=e.total, mechanical=e.mechanical)
+                yield replace(st, energy=e.total, mechanical=e.mechanical, parts=e, work=work)
     finally:
         if bar is not None:
             bar.close()
+
+
+def _nonconservative(loads, t: float) -> np.ndarray:
+    """The node forces at ``t`` whose work is counted (N): all loads but gravity, whose potential
+    is part of the energy."""
+    return loads.force(t) - loads.gravity_force
 
 
 @dataclass(frozen=True, eq=False)
@@ -181,9 +203,13 @@ class Recording:
     u : ndarray, shape (T, m, 3)
         Node displacements, m.
     energy : ndarray, shape (T,)
-        Total energy, J.
+        Total energy (kinetic + elastic + gravity + contact), J.
     mechanical : ndarray, shape (T,)
         Kinetic + elastic energy, J.
+    parts : dict of str to ndarray (T,)
+        The energy by kind, J: ``kinetic``, ``elastic``, ``gravity``, ``contact``, and ``work``
+        (done by the loads since the start) and ``dissipated`` (``energy_0 + work - energy``:
+        damping, friction, the integrator's numerical damping; < 0 is energy the run created).
     points : ndarray, shape (T, k, 3) or None
         Positions of the embedded points (source-mesh vertices), model units.
     n_steps : int
@@ -210,17 +236,40 @@ class Recording:
     dt: float
     max_contact_depth: float = -math.inf
     info: dict = field(default_factory=dict)
+    parts: dict = field(default_factory=dict)
 
     @property
     def seconds_per_step(self) -> float:
         return self.seconds / max(self.n_steps, 1)
 
     @property
+    def energy_scale(self) -> float:
+        """The energy the run handles, J: the largest of ``T + U``, ``|work|`` and the gravity
+        potential's change over the run (0 when nothing moves)."""
+        vals = [float(np.max(np.abs(self.mechanical)))] if len(self.mechanical) else [0.0]
+        for k in ("work", "gravity"):
+            if k in self.parts and len(self.parts[k]):
+                vals.append(float(np.max(np.abs(self.parts[k] - self.parts[k][0]))))
+        return max(vals)
+
+    def _created(self) -> np.ndarray:
+        """Energy created per frame, J: ``E - E_0 - work`` (what was put in not counted)."""
+        work = self.parts.get("work", np.zeros_like(self.energy))
+        return self.energy - self.energy[0] - work
+
+    @property
     def energy_drift(self) -> float:
-        """``(E_end - E_0) / max(T + U)``: total-energy change relative to the largest kinetic +
-        elastic energy of the run (0 when nothing moves)."""
-        scale = float(np.max(self.mechanical)) if len(self.mechanical) else 0.0
-        return 0.0 if scale == 0 else float((self.energy[-1] - self.energy[0]) / scale)
+        """``(E_end - E_0 - W) / scale`` (:attr:`energy_scale`): the energy created (> 0) or
+        dissipated (< 0) by the end, beyond the work ``W`` the loads put in; 0 when nothing moves."""
+        scale = self.energy_scale
+        return 0.0 if scale == 0 or not len(self.energy) else float(self._created()[-1] / scale)
+
+    @property
+    def energy_gain(self) -> float:
+        """The most energy the run ever created beyond what was put in, as a fraction of
+        :attr:`energy_scale` (>= 0; a stable, dissipative run stays near 0)."""
+        scale = self.energy_scale
+        return 0.0 if scale == 0 or not len(self.energy) else max(0.0, float(self._created().max() / scale))
 
 
 def record(integrator, n_steps: int, *, scene=None, every: int = 1, check: bool = True, growth: float = 10.0,
@@ -235,11 +284,13 @@ def record(integrator, n_steps: int, *, scene=None, every: int = 1, check: bool 
         Keep the node displacements of every frame (memory ``T * m * 3`` floats).
     """
     t0 = _time.perf_counter()
-    times, us, es, pts, mech = [], [], [], [], []
+    times, us, es, pts, mech, parts = [], [], [], [], [], []
     for st in simulate(integrator, n_steps, every=every, check=check, growth=growth, progress=progress):
         times.append(st.time)
         es.append(st.energy)
         mech.append(st.mechanical)
+        p = st.parts
+        parts.append((p.kinetic, p.elastic, p.gravity, p.contact, st.work))
         if keep_u:
             us.append(st.u)
         if scene is not None:
@@ -251,7 +302,15 @@ def record(integrator, n_steps: int, *, scene=None, every: int = 1, check: bool 
                      n_steps=int(n_steps), seconds=secs, setup_seconds=getattr(integrator, "setup_seconds", 0.0),
                      method=integrator.name, dt=integrator.dt,
                      max_contact_depth=float(getattr(integrator, "max_contact_depth", -math.inf)),
-                     info=dict(getattr(integrator, "info", {})))
+                     info=dict(getattr(integrator, "info", {})), parts=_parts(np.asarray(parts), np.asarray(es)))
+
+
+def _parts(rows: np.ndarray, energy: np.ndarray) -> dict:
+    """The energy-by-kind arrays of a recording from rows (kinetic, elastic, gravity, contact, work)."""
+    rows = rows.reshape(-1, 5)
+    out = dict(zip(("kinetic", "elastic", "gravity", "contact", "work"), rows.T.copy()))
+    out["dissipated"] = (energy[0] + out["work"] - energy) if len(energy) else np.zeros(0)
+    return out
 
 
 __all__ = ["State", "METHODS", "make_integrator", "simulate", "record", "Recording"]

@@ -3,6 +3,7 @@ runs, callable from Python with the same meaning (loads, obstacles, impulses, me
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -15,7 +16,8 @@ LATTICE_TRACK_BYTES = 256 * 2**20
 """Largest recorded node-displacement history (bytes) that a run keeps for its animation file."""
 
 ENERGY_GAIN_WARN = 0.05
-"""Energy gained (fraction of the largest kinetic + elastic energy) past which a run is flagged."""
+"""Energy created beyond the loads' work (fraction of :attr:`Recording.energy_scale`) past which a
+run is flagged."""
 
 AXES = "xyz"
 
@@ -48,8 +50,11 @@ class NewmarkOptions:
 
 
 def impulse_nodes(scene, impulses) -> np.ndarray | None:
-    """Impulses ``[(vertex, Jx, Jy, Jz), ...]`` (N s) on source vertices, spread to the nodes (``W^T J``)."""
-    if not impulses:
+    """Impulses ``[(vertex, Jx, Jy, Jz), ...]`` (N s) on source vertices as node impulses, spread
+    over the mass around each vertex (:func:`sc_fem.dynamics.loads.impulse_nodes`)."""
+    from .loads import impulse_nodes as spread
+
+    if impulses is None or not len(impulses):
         return None
     n = scene.rest_vertices.shape[0]
     arr = as_float_array(impulses, "impulses")
@@ -60,26 +65,41 @@ def impulse_nodes(scene, impulses) -> np.ndarray | None:
     bad = ~(np.mod(idx, 1) == 0) | (idx < 0) | (idx >= n)
     if np.any(bad):
         raise InputError(f"impulse VERTEX must be a vertex index in [0, {n}), got {idx[bad][0]:g}")
-    J = np.zeros((n, 3))
-    np.add.at(J, idx.astype(np.int64), arr[:, 1:])
-    return scene.forces_to_nodes(J)
+    return spread(scene.model, scene.rest_vertices, idx.astype(np.int64), arr[:, 1:])
 
 
-def run_simulation(scene, *, dt: float, duration: float, method: str = "newmark", fps: float = 50.0,
+def default_dt(method: str, fps: float) -> float:
+    """The time step (s) a run takes when none is given: two steps per recorded frame for the
+    implicit methods (stable at any step; the frame rate is what the animation resolves), one
+    frame for XPBD (its substeps divide it). Central differences take ``0.9 dt_crit`` instead
+    (:func:`run_simulation`)."""
+    return 1.0 / fps if method == "xpbd" else 0.5 / fps
+
+
+def run_simulation(scene, *, duration: float, dt: float | None = None, method: str = "auto", fps: float = 50.0,
                    gravity: bool = False, gust=None, ground=None, sphere=None, box=None, impulses=(),
-                   rayleigh=(0.0, 0.0), newmark: NewmarkOptions = NewmarkOptions(),
+                   friction: float = 0.3, rayleigh=(0.0, 0.0), newmark: NewmarkOptions = NewmarkOptions(),
                    xpbd: XPBDOptions = XPBDOptions(), element: str | None = None, up: str = "z",
                    progress: bool = False):
-    """Simulate ``scene`` for ``duration`` s with step ``dt`` and record its source vertices.
+    """Simulate ``scene`` for ``duration`` s and record its source vertices.
 
     Parameters
     ----------
     scene : sc_fem.Scene
-    dt, duration : float
-        Step and simulated time, s (XPBD: ``dt`` is the frame step, split in ``xpbd.substeps``).
-    method : {"newmark", "corotational", "central", "xpbd"}
+    duration : float
+        Simulated time, s.
+    dt : float, optional
+        Time step, s (XPBD: the frame step, split in ``xpbd.substeps``). Default
+        (:func:`default_dt`): half a frame for the implicit methods, ``0.9 dt_crit`` for
+        ``"central"``, a frame for XPBD.
+    method : {"auto", "ipc", "newmark", "corotational", "central", "xpbd"}
+        ``"auto"`` (default): ``"ipc"`` (contact inside the implicit step,
+        :mod:`sc_fem.dynamics.ipc`) when there is an obstacle, else ``"newmark"``.
+        ``"newmark"``/``"corotational"``/``"central"`` with obstacles project the vertices out
+        after every step (:mod:`sc_fem.dynamics.contact`), which can feed energy into the model.
     fps : float
-        Frames per second recorded.
+        Frames per second recorded (the recorded frames are ``round(1 / (fps dt))`` steps apart;
+        a ``dt`` that does not divide the frame step is an error).
     gravity : bool
         Gravity 9.81 m/s^2 along -``up``.
     gust : (Fx, Fy, Fz, seconds), optional
@@ -88,7 +108,10 @@ def run_simulation(scene, *, dt: float, duration: float, method: str = "newmark"
         Obstacles in model units: the plane at height ``ground`` along ``up``, ``(x, y, z, r)``,
         ``(x0, y0, z0, x1, y1, z1)``.
     impulses : sequence of (vertex, Jx, Jy, Jz)
-        Impulses in N s on source vertices at t = 0.
+        Impulses in N s on source vertices at t = 0, each spread over the lattice mass within
+        1.5 cube edges of its vertex (:func:`sc_fem.dynamics.loads.impulse_nodes`).
+    friction : float
+        Coulomb friction coefficient of the contacts of ``"ipc"`` (default 0.3; 0: frictionless).
     rayleigh : (a0, a1)
         Rayleigh damping ``C = a0 M + a1 K``.
     newmark, xpbd : NewmarkOptions, XPBDOptions
@@ -106,27 +129,30 @@ def run_simulation(scene, *, dt: float, duration: float, method: str = "newmark"
     from ..fem.elements import DEFAULT_ELEMENT
     from .contact import Contact, obstacles_from
     from .driver import METHODS, make_integrator, record
+    from .ipc import BarrierContact
     from .loads import Gravity, LoadSet, VertexForce, half_sine
 
-    if method not in METHODS:
-        raise InputError(f"method must be one of {list(METHODS)}, got {method!r}")
-    dt, duration, fps = (positive_scalar(v, n) for v, n in ((dt, "dt"), (duration, "duration"), (fps, "fps")))
+    dt_given = dt
+
+    if method not in ("auto", *METHODS):
+        raise InputError(f"method must be one of {['auto', *METHODS]}, got {method!r}")
+    duration, fps = positive_scalar(duration, "duration"), positive_scalar(fps, "fps")
+    obstacles = obstacles_from(ground, sphere, box, up=up_axis(up))
+    if method == "auto":
+        method = "ipc" if obstacles else "newmark"
     element = DEFAULT_ELEMENT if element is None else element
-    n_steps = int(round(duration / dt))
-    if n_steps < 1:
-        raise InputError(f"duration {duration:g} s is shorter than one step of dt {dt:g} s")
-    every = max(1, int(round(1.0 / (fps * dt))))
     model, verts = scene.model, scene.rest_vertices
     a = up_axis(up)
     g = tuple(-GRAVITY if gravity and k == a else 0.0 for k in range(3))
-    obstacles = obstacles_from(ground, sphere, box, up=a)
     if method == "xpbd":
         unsupported = [name for name, on in (
-            ("gust", gust is not None), ("impulse", bool(len(impulses))), ("ground", ground is not None),
-            ("sphere", sphere is not None), ("box", box is not None), ("rayleigh", any(rayleigh)),
-            ("beta/gamma/hht-alpha", newmark != NewmarkOptions())) if on]
+            ("gust", gust is not None), ("impulse", impulses is not None and bool(len(impulses))),
+            ("ground", ground is not None), ("sphere", sphere is not None), ("box", box is not None),
+            ("rayleigh", any(rayleigh)), ("beta/gamma/hht-alpha", newmark != NewmarkOptions())) if on]
         if unsupported:
             raise InputError(f"method 'xpbd' supports gravity and fixed nodes only, not {', '.join(unsupported)}")
+    dt = default_dt(method, fps) if dt is None else positive_scalar(dt, "dt")
+    if method == "xpbd":
         integ = make_integrator("xpbd", model, dt, fixed_nodes=scene.fixed_nodes, gravity=g, substeps=xpbd.substeps,
                                 iterations=xpbd.iterations, constraints=xpbd.constraints, damping=xpbd.damping)
     else:
@@ -135,33 +161,52 @@ def run_simulation(scene, *, dt: float, duration: float, method: str = "newmark"
             fx, fy, fz, secs = as_float_array(gust, "gust (Fx, Fy, Fz, seconds)", (4,))
             loads.append(VertexForce(np.arange(len(verts)), np.array([fx, fy, fz]) / len(verts), half_sine(secs)))
         loadset = LoadSet(model, loads, points=verts, faces=scene.faces, W=scene.W)
-        contact = Contact(model, verts, obstacles, W=scene.W) if obstacles else None
-        kw = {"fixed_nodes": scene.fixed_nodes, "loads": loadset, "contact": contact, "rayleigh": tuple(rayleigh),
-              "element": element}
-        if method != "central":
-            kw.update(beta=newmark.beta, gamma=newmark.gamma, alpha=newmark.alpha)
-        elif newmark != NewmarkOptions():
-            raise InputError("beta, gamma and the HHT alpha apply to the implicit methods, not to 'central'")
+        kw = {"fixed_nodes": scene.fixed_nodes, "loads": loadset, "rayleigh": tuple(rayleigh), "element": element}
+        if method == "ipc":
+            if newmark != NewmarkOptions():
+                raise InputError("beta, gamma and the HHT alpha apply to the Newmark methods; 'ipc' is backward Euler")
+            kw["contact"] = BarrierContact(model, verts, scene.faces, obstacles, W=scene.W,
+                                           friction=friction) if obstacles else None
+        else:
+            kw["contact"] = Contact(model, verts, obstacles, W=scene.W) if obstacles else None
+            if method != "central":
+                kw.update(beta=newmark.beta, gamma=newmark.gamma, alpha=newmark.alpha)
+            elif newmark != NewmarkOptions():
+                raise InputError("beta, gamma and the HHT alpha apply to the implicit methods, not to 'central'")
         integ = make_integrator(method, model, dt, **kw)
+        if method == "central" and dt_given is None:       # 0.9 dt_crit, a whole number of steps per frame
+            dt = 1.0 / fps / math.ceil(1.0 / (fps * 0.9 * integ.dt_crit))
+            integ = make_integrator(method, model, dt, **kw)
         J = impulse_nodes(scene, impulses)
         if J is not None:
             integ.set_velocity_from_impulse(J)
+    n_steps = int(round(duration / dt))
+    if n_steps < 1:
+        raise InputError(f"duration {duration:g} s is shorter than one step of dt {dt:g} s")
+    ratio = 1.0 / (fps * dt)
+    every = max(1, int(round(ratio)))
+    if abs(ratio - every) > 1e-6 * ratio:
+        raise InputError(f"the frame step 1/fps = {1 / fps:.6g} s is not a whole number of time steps dt = {dt:.6g} s "
+                         f"(the frames would be stored at {1 / (every * dt):.6g} fps): give a dt that divides it, "
+                         f"e.g. {1 / (fps * every):.6g} s")
     # node displacements go into the animation file (the exact lattice map of ``sc-fem reconstruct``)
     # unless they would take more than LATTICE_TRACK_BYTES of memory
     keep_u = (n_steps // every + 1) * model.n_nodes * 24 <= LATTICE_TRACK_BYTES
     rec = record(integ, n_steps, scene=scene, every=every, progress=progress, keep_u=keep_u)
     dtc = integ.dt_crit if method == "central" else None
     warnings = []
-    if rec.energy_drift > ENERGY_GAIN_WARN and gust is None:
-        # only a gust does work after t = 0 (impulses act at t = 0, damping and contact take energy out)
-        warnings.append(f"the total energy grew by {100 * rec.energy_drift:.3g} % of the largest kinetic + elastic "
-                        "energy with nothing feeding it: the run is not converged"
-                        + (" (use more substeps)" if method == "xpbd" else " (reduce dt)"))
+    if rec.energy_gain > ENERGY_GAIN_WARN:
+        # the loads' work is accounted; damping, friction and contact only take energy out
+        warnings.append(f"the run created energy: up to {100 * rec.energy_gain:.3g} % of its energy scale beyond the "
+                        "work of the loads: it is not converged"
+                        + (" (use more substeps)" if method == "xpbd" else
+                           " (use --method ipc, or a smaller dt)" if method != "ipc" else " (use a smaller dt)"))
     info = {"method": method, "dt": dt, "duration": duration, "n_steps": n_steps, "source": scene.source,
             "element": element, "material": model.info.get("material", ""), "gravity": bool(gravity),
             "ground": ground, "up": up, "sphere": None if sphere is None else [float(x) for x in sphere],
             "box": None if box is None else [float(x) for x in box], "rayleigh": [float(x) for x in rayleigh], "hht_alpha": newmark.alpha,
             "dt_crit": dtc, "scale": model.scale, "cubes": model.n_cubes, **rec.info,
             "implicit": bool(integ.implicit), "warnings": warnings,
-            "contact_tol": None if getattr(integ, "contact", None) is None else float(integ.contact.tol)}
+            "contact_tol": None if getattr(integ, "contact", None) is None else float(integ.contact.tol),
+            "friction": friction if method == "ipc" and obstacles else None}
     return replace(rec, info=info)

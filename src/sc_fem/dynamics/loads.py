@@ -11,6 +11,10 @@ Every load ends up as lattice node forces ``(m, 3)`` in newtons:
   of the rest geometry (``F = -p A n``, area in m^2 = model area x scale^2), split equally over
   the face's 3 vertices and mapped with ``W^T``, times ``time(t)``.
 
+Impulses (:func:`impulse_nodes`) are spread over the *mass* around the vertex they hit, not
+through ``W^T`` alone: a vertex inside a sliver cube would otherwise hand the whole impulse to
+nodes of a few grams and tear the mesh.
+
 Loads act on the rest geometry (small-displacement assumption). The time profiles
 :func:`half_sine` (a gust) and :func:`step` are provided; any ``callable(t) -> float`` works.
 
@@ -31,6 +35,9 @@ from ..errors import InputError
 from ..lattice.cubes import CubeModel
 
 Profile = Callable[[float], float]
+
+PATCH_RADIUS = 1.5
+"""Radius (in cube edges) of the node patch that shares a vertex impulse (:func:`impulse_nodes`)."""
 
 
 def _one(t: float) -> float:
@@ -178,3 +185,50 @@ class LoadSet:
     def gravity_potential(self, u: np.ndarray) -> float:
         """Potential energy of gravity relative to the rest state, ``-f_g . u`` (J); ``u`` (m, 3) m."""
         return -float(np.sum(self.gravity_force * u))
+
+
+def impulse_nodes(model: CubeModel, points, vertices, impulses, *, radius: float = PATCH_RADIUS) -> np.ndarray:
+    """Node impulses (m, 3), N s, for impulses on source vertices, spread over the mass around each.
+
+    An impulse ``J`` on vertex ``p`` is shared by the lattice nodes within ``radius`` cube edges
+    of ``p`` (at least the 8 nodes of its cube) in proportion to their lumped masses ``m_i``:
+    node ``i`` gets ``m_i J / m_patch``. With a lumped mass every node of the patch then starts
+    with the same velocity ``J / m_patch`` (momentum ``J``, kinetic energy ``|J|^2 / (2 m_patch)``
+    -- a rigid patch hit by ``J``); with the consistent mass ``M^-1`` of it is close to that.
+
+    Parameters
+    ----------
+    model : CubeModel
+    points : array_like, shape (n, 3)
+        Source vertices, model units.
+    vertices : array_like of int, shape (k,)
+        The vertices hit.
+    impulses : array_like, shape (k, 3)
+        Impulses, N s.
+    radius : float
+        Patch radius in cube edges (default :data:`PATCH_RADIUS`).
+
+    Returns
+    -------
+    ndarray, shape (m, 3)
+    """
+    from scipy.spatial import cKDTree
+
+    from ..lattice.embed import embed
+
+    pts = as_points(points, "points")
+    idx = as_indices(vertices, len(pts), "impulse vertices")
+    J = as_float_array(impulses, "impulses", (len(idx), 3))
+    out = np.zeros((model.n_nodes, 3))
+    if not len(idx):
+        return out
+    m = model.node_masses()
+    near = cKDTree(model.nodes).query_ball_point(pts[idx], r=radius * model.pitch)   # one list per impulse
+    own = embed(model, pts[idx]).tocsr()                              # the nodes of each vertex's cube
+    rows = np.concatenate([np.full(len(a), k) for k, a in enumerate(near)] + [own.nonzero()[0]]).astype(np.int64)
+    cols = np.concatenate([np.asarray(a, dtype=np.int64) for a in near] + [own.nonzero()[1]])
+    P = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(idx), model.n_nodes))
+    P.data[:] = 1.0                                                   # duplicates summed: back to 0/1
+    Pm = P.multiply(m[None, :]).tocsr()                               # m_i on each patch
+    share = sp.diags(1.0 / np.maximum(np.asarray(Pm.sum(axis=1)).ravel(), 1e-300)) @ Pm
+    return np.asarray(share.T @ J)
