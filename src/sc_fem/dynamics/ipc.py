@@ -245,10 +245,10 @@ class BarrierContact:
         intersection-free (CCD)."""
         return float(_ipctk().compute_collision_free_stepsize(self.mesh, V0, V1))
 
-    def min_distance(self, V: np.ndarray) -> float:
+    def min_distance(self, V: np.ndarray, col=None) -> float:
         """Smallest distance (m) of a moving vertex to anything it may collide with, at most
-        ``dhat`` (``inf`` when nothing is closer)."""
-        col = self.collisions(V)
+        ``dhat`` (``inf`` when nothing is closer); ``col``: the collisions at ``V`` if known."""
+        col = self.collisions(V) if col is None else col
         return float(np.sqrt(col.compute_minimum_distance(self.mesh, V))) if len(col) else np.inf
 
 
@@ -296,6 +296,7 @@ class IPC(TimeIntegrator):
         self.stats = _Step()
         self._kappa = None            # barrier stiffness in IPC's h^2-scaled units, and its maximum
         self._kappa_max = None
+        self._last = None             # (x, V, collisions) of the last state _advance returned
         super().__init__(model, dt, **kw)
         dt = self.dt
         a0, a1 = self.rayleigh
@@ -317,8 +318,12 @@ class IPC(TimeIntegrator):
         c = self.barrier
         if c is None or self._kappa is None:
             return 0.0
-        V = c.vertices(x)
-        col = c.collisions(V)
+        last = self._last
+        if last is not None and last[0] is x:                 # the state _advance just made
+            V, col = last[1], last[2]
+        else:
+            V = c.vertices(x)
+            col = c.collisions(V)
         return float(self._B()(col, c.mesh, V)) if len(col) else 0.0
 
     def energy(self):
@@ -427,8 +432,12 @@ class IPC(TimeIntegrator):
             self.stats.newton += 1
             v1 = (x - u) / dt
             return x, v1, (v1 - v) / dt
-        V = c.vertices(x)
-        col = c.collisions(V)
+        last = self._last
+        if last is not None and last[0] is u:
+            V, col = last[1], last[2]
+        else:
+            V = c.vertices(x)
+            col = c.collisions(V)
         if self._kappa is None or len(col):
             self._update_kappa(x, u, ut, f, V, col)
         fric = None
@@ -440,7 +449,7 @@ class IPC(TimeIntegrator):
         Vn = V
         tol_x = self.tol * self._scale_x
         contact_seen = False
-        prev_d = c.min_distance(V) ** 2 if len(col) else np.inf
+        prev_d = c.min_distance(V, col) ** 2 if len(col) else np.inf
         for it in range(self.max_newton):
             self.stats.newton += 1
             e_s, g = self._smooth(x, u, ut, f)
@@ -485,6 +494,7 @@ class IPC(TimeIntegrator):
             raise InstabilityError(f"ipc: Newton did not converge in {self.max_newton} iterations at step "
                                    f"{self.n_steps + 1} (t = {t1:.6g} s, dt = {dt:.4g} s); try a smaller dt")
         self.stats.contact_steps += int(contact_seen)
+        self._last = (x, V, col)
         v1 = (x - u) / dt
         return x, v1, (v1 - v) / dt
 
