@@ -164,11 +164,20 @@ def run_precompute(args) -> int:
 
 
 def _run_batch(args, meshes: list[str], out: Path) -> int:
-    from ..modes.batch import run_batch
+    """The batch; Ctrl-C gives one line naming the mode files completed, and exit status 130."""
+    from ..modes.batch import BatchInterrupted, run_batch
 
     opts = _modal_options(args)
-    res = run_batch(meshes, out, options=opts, scheduler=args.scheduler, n_workers=args.workers,
-                    progress=not args.quiet, expand=False)
+    try:
+        res = run_batch(meshes, out, options=opts, scheduler=args.scheduler, n_workers=args.workers,
+                        progress=not args.quiet, expand=False)
+    except BatchInterrupted as stop:
+        done = (f"{len(stop.completed)} of {stop.n_meshes} mode files completed (complete and valid): "
+                + ", ".join(map(str, stop.completed)) if stop.completed else
+                f"none of the {stop.n_meshes} mode files was completed")
+        print(f"sc-fem precompute-modes: interrupted; {done}; the others were not written; "
+              f"summary {stop.summary}", file=sys.stderr)
+        return 130
     if not args.quiet:
         w = max(len(Path(r["mesh"]).name) for r in res.rows)
         for r in res.rows:

@@ -113,21 +113,23 @@ def _document(vertices, faces, targets, weights, extras, *, times=None, anim_wei
     return gltf
 
 
-def _load(source):
-    """A ModalBasis or an Animation from an object or a path (by the file's kind)."""
+def _load(source, what: str = "mode or animation file"):
+    """A ModalBasis or an Animation from an object or a path (by the file's kind).
+
+    Raises
+    ------
+    FileFormatError
+        A missing, truncated, non-zip or corrupted file (named ``what``), or a foreign one.
+    """
     from ..modes.modal import ModalBasis
-    from .animation import Animation, load_animation
+    from ._npz import npz_kind
+    from .animation import ANIMATION_KIND, Animation, load_animation
     from .modes import load_modes
 
     if isinstance(source, (ModalBasis, Animation)):
         return source
     path = Path(source)
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            kind = str(z["kind"]) if "kind" in z.files else ""
-    except (OSError, ValueError, KeyError):
-        kind = ""
-    return load_animation(path) if kind == "sc_fem.animation" else load_modes(path)
+    return load_animation(path) if npz_kind(path, what=what) == ANIMATION_KIND else load_modes(path)
 
 
 def mode_scales(basis, amplitude: float = DEFAULT_AMPLITUDE) -> np.ndarray:

@@ -60,6 +60,8 @@ def write_viewer(modes, path, *, amplitude: float | None = None, up: str = "z", 
 
     Raises
     ------
+    FileFormatError
+        ``modes`` is a missing, truncated, non-zip or corrupted file.
     RenderError
         The JavaScript bundle has not been built (``make viewer`` needs npm).
     """
@@ -72,12 +74,12 @@ def write_viewer(modes, path, *, amplitude: float | None = None, up: str = "z", 
         raise InputError(f"the viewer is an .html page, got {path.name!r}")
     if up not in ("x", "y", "z"):
         raise InputError(f"up must be 'x', 'y' or 'z', got {up!r}")
+    basis = _load(modes, what="mode file")                  # the input's faults first, then the machine's
+    if isinstance(basis, Animation):
+        raise InputError("sc-fem view plays mode files; export an animation with sc-fem export instead")
     if not BUNDLE.is_file():
         raise RenderError(f"the web viewer's JavaScript bundle {BUNDLE} is not built: run `make viewer` "
                           "(it fetches three.js and esbuild from the npm registry; needs node and npm)")
-    basis = _load(modes)
-    if isinstance(basis, Animation):
-        raise InputError("sc-fem view plays mode files; export an animation with sc-fem export instead")
     amplitude = DEFAULT_AMPLITUDE if amplitude is None else float(amplitude)
     glb = glb_bytes(basis, amplitude=amplitude)
     config = {"frequencies_hz": [float(f) for f in basis.frequencies],

@@ -6,15 +6,26 @@ a :class:`~distributed.LocalCluster` started for the run (default) or an existin
 solver error, even a crashed worker) gets ``status="error"`` and its message in the summary; the
 others finish. Progress is shown with tqdm on stderr as tasks complete; the summary is written
 atomically as ``summary.csv`` in the output folder.
+
+Ctrl-C (SIGINT) is handled by this process alone: the local cluster's worker processes are
+started with SIGINT ignored (so they print no tracebacks; a Ctrl-C while the cluster starts, a
+few seconds, is ignored too), the cluster is shut down, the summary is written (unfinished meshes
+``status="interrupted"``) and :class:`BatchInterrupted` lists the mode files that were completed.
+Mode files are written atomically and validated before writing, so each listed file is complete
+and readable and no other file is left half-written.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import glob
 import io
+import logging
 import os
+import signal
 import sys
+import threading
 import time
 import traceback
 from dataclasses import dataclass, field
@@ -57,6 +68,99 @@ class BatchResult:
     @property
     def n_failed(self) -> int:
         return sum(r["status"] != "ok" for r in self.rows)
+
+
+class BatchInterrupted(KeyboardInterrupt):
+    """Ctrl-C during :func:`run_batch`, after the cluster was shut down and the summary written.
+
+    Attributes
+    ----------
+    completed : list of Path
+        Mode files this batch completed (written atomically: complete and valid), in input order.
+    n_meshes : int
+        Meshes in the batch.
+    summary : Path
+        The CSV written (unfinished meshes have ``status="interrupted"``).
+    """
+
+    def __init__(self, completed, n_meshes: int, summary: Path) -> None:
+        super().__init__(f"interrupted: {len(completed)} of {n_meshes} mode files completed")
+        self.completed, self.n_meshes, self.summary = [Path(p) for p in completed], n_meshes, Path(summary)
+
+
+@contextlib.contextmanager
+def _sigint_ignored():
+    """Ignore SIGINT meanwhile (in the main thread; elsewhere signals cannot be set): processes
+    started inside inherit it across ``exec`` and Python then installs no KeyboardInterrupt handler
+    in them; around a shutdown, a second Ctrl-C cannot interrupt it."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
+
+
+WORKER_LOGGING = "critical"
+"""Level of the ``distributed`` loggers in the local cluster's worker processes: what they report
+(a failed task, and on Ctrl-C the cancelled tasks and lost heartbeats of workers being stopped,
+with tracebacks) is in the summary or is not news."""
+
+
+@contextlib.contextmanager
+def _quiet_workers():
+    """Worker processes started meanwhile ignore SIGINT (:func:`_sigint_ignored`) and log at
+    :data:`WORKER_LOGGING` (dask reads ``DASK_LOGGING__DISTRIBUTED`` as it starts in them)."""
+    key = "DASK_LOGGING__DISTRIBUTED"
+    old = os.environ.get(key)
+    os.environ[key] = WORKER_LOGGING
+    try:
+        with _sigint_ignored():
+            yield
+    finally:
+        if old is None:
+            os.environ.pop(key, None)
+        else:
+            os.environ[key] = old
+
+
+def _stamp(path) -> tuple[int, int] | None:
+    """``(inode, mtime_ns)`` of a file, None if it does not exist: an atomic write (a rename of a
+    new file) always changes it."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_ino, st.st_mtime_ns
+
+
+def _interrupted(rows: list, meshes: list[str], outputs: list[str], before: dict, out: Path) -> BatchInterrupted:
+    """The :class:`BatchInterrupted` of a batch stopped with ``rows`` (None: no result received):
+    completed are the outputs reported ok and those replaced on disk since ``before`` (a task that
+    finished while the cluster was stopped); the summary is written with the rest interrupted."""
+    done = [o for o, r in zip(outputs, rows)
+            if (r is not None and r["status"] == "ok") or _stamp(o) not in (None, before[o])]
+    late = {"status": "ok", "error": "finished as the batch was interrupted (details not collected)"}
+    cut = {"status": "interrupted", "error": "interrupted (Ctrl-C)"}
+    for i, (m, o) in enumerate(zip(meshes, outputs)):     # loop over meshes: rows of unfinished ones
+        if rows[i] is None:
+            rows[i] = {**{k: "" for k in SUMMARY_FIELDS}, "mesh": m, **({**late, "output": o} if o in done else cut)}
+    return BatchInterrupted(done, len(meshes), write_summary(rows, out / "summary.csv"))
+
+
+@contextlib.contextmanager
+def _no_logging(quiet: bool):
+    """Meanwhile (if ``quiet``), no logging in this process: the shutdown of an interrupted batch
+    logs cancelled tasks and killed workers."""
+    previous = logging.root.manager.disable
+    if quiet:
+        logging.disable(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        logging.disable(previous)
 
 
 def expand_inputs(patterns) -> list[str]:
@@ -153,6 +257,12 @@ def run_batch(meshes, out_dir, *, options: dict | None = None, scheduler: str | 
     Returns
     -------
     BatchResult
+
+    Raises
+    ------
+    BatchInterrupted
+        Ctrl-C (a KeyboardInterrupt): the cluster is shut down and the summary written first; it
+        lists the mode files completed.
     """
     from tqdm import tqdm
 
@@ -178,14 +288,20 @@ def run_batch(meshes, out_dir, *, options: dict | None = None, scheduler: str | 
     outputs = [str(out / n) for n in names]
     opts = dict(options or {})
     t0 = time.perf_counter()
+    before = {o: _stamp(o) for o in outputs}
+    rows: list[dict | None] = [None] * len(meshes)
     if Client is None:
         bar = tqdm(total=len(meshes), desc="meshes (serial: dask not installed)", unit="mesh",
                    disable=not progress, file=sys.stderr)
-        rows = []
-        for m, o in zip(meshes, outputs):                 # loop over input meshes
-            rows.append(precompute_one(m, o, opts))
-            bar.update(1)
-        bar.close()
+        try:
+            for i, (m, o) in enumerate(zip(meshes, outputs)):     # loop over input meshes
+                rows[i] = precompute_one(m, o, opts)
+                bar.update(1)
+        except KeyboardInterrupt:
+            with _sigint_ignored():
+                raise _interrupted(rows, meshes, outputs, before, out) from None
+        finally:
+            bar.close()
         summary = write_summary(rows, out / "summary.csv")
         return BatchResult(rows=rows, summary=summary, seconds=time.perf_counter() - t0,
                            scheduler="serial (dask not installed)")
@@ -194,14 +310,15 @@ def run_batch(meshes, out_dir, *, options: dict | None = None, scheduler: str | 
         client = Client(scheduler, timeout="20s")
     else:
         nw = n_workers or max(1, min(len(meshes), os.cpu_count() or 1))
-        cluster = LocalCluster(n_workers=nw, threads_per_worker=1, processes=processes, dashboard_address=None)
-        client = Client(cluster)
-    rows: list[dict | None] = [None] * len(meshes)
+        with _quiet_workers():         # Ctrl-C is this process's alone
+            cluster = LocalCluster(n_workers=nw, threads_per_worker=1, processes=processes, dashboard_address=None)
+            client = Client(cluster)
+    interrupted = False
+    bar = tqdm(total=len(meshes), desc="meshes", unit="mesh", disable=not progress, file=sys.stderr)
     try:
         futures = [client.submit(precompute_one, m, o, opts, key=f"precompute-{i}-{Path(o).stem}", pure=False)
                    for i, (m, o) in enumerate(zip(meshes, outputs))]
         index = {f.key: i for i, f in enumerate(futures)}
-        bar = tqdm(total=len(futures), desc="meshes", unit="mesh", disable=not progress, file=sys.stderr)
         for fut in as_completed(futures):                 # loop over completed tasks
             i = index[fut.key]
             try:
@@ -211,11 +328,16 @@ def run_batch(meshes, out_dir, *, options: dict | None = None, scheduler: str | 
                            "error": f"task failed: {type(exc).__name__}: {exc}"}
             bar.update(1)
             bar.set_postfix_str(f"{Path(meshes[i]).name}: {rows[i]['status']}")
-        bar.close()
         address = client.scheduler.address if client.scheduler else str(scheduler)
+    except KeyboardInterrupt:
+        interrupted = True
     finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+        bar.close()
+        with _sigint_ignored(), _no_logging(interrupted):   # a stopped batch's shutdown is not news
+            client.close()
+            if cluster is not None:
+                cluster.close()
+            if interrupted:
+                raise _interrupted(rows, meshes, outputs, before, out) from None
     summary = write_summary(rows, out / "summary.csv")
     return BatchResult(rows=rows, summary=summary, seconds=time.perf_counter() - t0, scheduler=address)

@@ -127,6 +127,16 @@ def time_basis_rates(t, alpha) -> np.ndarray:
     return np.stack([np.exp(a - alpha), np.exp(-a), np.sin(a), np.cos(a)], axis=-1)
 
 
+def time_basis_bound(alpha) -> np.ndarray:
+    """Largest absolute value on ``[0, 1]`` of each (shifted) time function, shape ``(A, 4)`` for
+    rates ``alpha`` (A,): 1 for ``exp(a (t - 1))``, ``exp(-a t)`` and ``cos(a t)``, and
+    ``sin(min(a, pi / 2))`` for ``sin(a t)``."""
+    alpha = np.atleast_1d(np.asarray(alpha, dtype=float))
+    out = np.ones((len(alpha), N_TIME))
+    out[:, 2] = np.sin(np.minimum(alpha, 0.5 * np.pi))
+    return out
+
+
 def basis(u, t, r: float, alpha: float, deriv_u: int = 0, deriv_t: int = 0) -> np.ndarray:
     """All 32 functions ``w_n(u, t)`` in the paper's order (n = 8 i + j + 1), shifted scaling.
 

@@ -19,7 +19,8 @@ found by variable projection: the residual of the linear problem on the whole lo
 once, then alpha refined by batched zoom levels at the best grid r and its neighbours and
 successive parabolic steps in ``log r`` (:func:`_search`). ``alpha`` is bounded by the
 Nyquist rate ``pi / max(ds)`` of the fitted frames (beyond it ``sin(alpha t)`` aliases: it fits
-the frames and oscillates in between). ``criterion="loo"`` minimises instead the
+the frames and oscillates in between; at it, with evenly spaced frames, ``sin(alpha t)`` vanishes
+at every frame and is left out of the fit: :data:`.varpro.UNSEEN`). ``criterion="loo"`` minimises instead the
 leave-one-interior-frame-out prediction error, which targets the skipped frames directly. The
 search evaluates its objective on at most :data:`SEARCH_POINTS` evenly spaced points per curve;
 the constants at the ``(r, alpha)`` found are the least squares of all points.

@@ -1,6 +1,14 @@
 """The reconstruction job on a vertex animation: extract (or read) curves, fit the PDE model at
 some frames, fit the B-spline baseline at the same frames, compare both at every frame in
-between -- and the ``.npz`` file that holds the result, with its reader."""
+between -- and the ``.npz`` file that holds the result, with its reader.
+
+Every result is judged (:attr:`Reconstruction.failures`): the PDE fit *fails* when an error is
+not finite, when its mean E_A over the evaluated frames exceeds :data:`MAX_MEAN_E_A` or its max
+E_M exceeds :data:`MAX_E_M`, or when at the fitted frames its mean E_A is worse than the B-spline
+baseline's (errors below :data:`MATCH_FLOOR` count as matching, so a baseline that interpolates
+its points does not fail a fit that is good in absolute terms). ``summary()`` and the report say
+so; ``sc-fem reconstruct`` then exits 1.
+"""
 
 from __future__ import annotations
 
@@ -16,6 +24,16 @@ from ..errors import InputError
 
 RECON_KIND = "sc_fem.reconstruction"
 RECON_FORMAT_VERSION = 1
+
+MAX_MEAN_E_A = 0.02
+"""A PDE fit whose mean E_A over the evaluated frames is above this (2 % of the curves' diameter;
+good fits of simulated animations measure 1e-4 to 2e-3) has failed."""
+MAX_E_M = 0.2
+"""... or whose largest point error E_M is above this (20 % of a curve's diameter)."""
+MATCH_FLOOR = 1e-3
+"""At the fitted frames the PDE must do as well as the B-spline baseline (mean E_A) or better than
+this: the baseline interpolates short curves (lattice node lines, E_A ~1e-11) where the PDE's
+1e-4 is a good fit."""
 
 BUDGET = 2.0
 """``segments="auto"`` stops refining once the PDE model has more than this many times the
@@ -80,12 +98,36 @@ class Reconstruction:
         """Which of :attr:`frames` were fitted, bool (F,)."""
         return np.isin(self.frames, self.fit_frames)
 
+    @property
+    def failures(self) -> list[str]:
+        """Why the PDE fit failed (see the module docstring), one sentence each; empty if it did not."""
+        ea, em = float(np.mean(self.E_A_pde)), float(np.max(self.E_M_pde))
+        out = []
+        if not (np.all(np.isfinite(self.E_A_pde)) and np.all(np.isfinite(self.E_M_pde))):
+            out.append("the PDE curves are not finite at some frames")
+        if not ea <= MAX_MEAN_E_A:
+            out.append(f"PDE mean E_A {ea:.3g} is above the threshold {MAX_MEAN_E_A:g}")
+        if not em <= MAX_E_M:
+            out.append(f"PDE max E_M {em:.3g} is above the threshold {MAX_E_M:g}")
+        f = self.fitted
+        pde, bsp = float(np.mean(self.E_A_pde[f])), float(np.mean(self.E_A_bspline[f]))
+        if not pde <= max(bsp, MATCH_FLOOR):
+            out.append(f"at the fitted frames the PDE's mean E_A {pde:.3g} is worse than the B-spline "
+                       f"baseline's {bsp:.3g}")
+        return out
+
+    @property
+    def ok(self) -> bool:
+        """True when the PDE fit did not fail (:attr:`failures` is empty)."""
+        return not self.failures
+
     def summary(self) -> str:
-        """One line: mean E_A and max E_M of both methods and the PDE's rates."""
+        """One line: mean E_A and max E_M of both methods, the PDE's rates, and ``fit FAILED`` when
+        it failed (:attr:`failures`)."""
         pieces = self.meta.get("segments", 1)
         return (f"PDE: mean E_A {self.E_A_pde.mean():.6f}, max E_M {self.E_M_pde.max():.6f} (r={self.r:.4g}, "
                 f"alpha={self.alpha:.4g}, {pieces} piece{'s' if pieces != 1 else ''} per curve); B-spline: mean E_A {self.E_A_bspline.mean():.6f}, "
-                f"max E_M {self.E_M_bspline.max():.6f}")
+                f"max E_M {self.E_M_bspline.max():.6f}" + ("" if self.ok else "; fit FAILED"))
 
 
 _ARRAYS = ("frames", "times", "fit_frames", "curves_reference", "curves_pde", "curves_bspline", "E_A_pde",
@@ -305,7 +347,11 @@ def load_reconstruction(path) -> Reconstruction:
 def markdown_report(result: Reconstruction) -> str:
     """Markdown: per-frame E_A / E_M (mean / max over curves) for PDE and B-spline, then a summary."""
     res = result
-    lines = ["| frame | fitted | PDE E_A | PDE E_M | B-spline E_A | B-spline E_M |",
+    failures = res.failures
+    verdict = ("**The PDE fit FAILED**: " + "; ".join(failures) + "." if failures else
+               f"The PDE fit is acceptable (mean E_A <= {MAX_MEAN_E_A:g}, max E_M <= {MAX_E_M:g}, at the fitted "
+               f"frames no worse than the B-spline or below {MATCH_FLOOR:g}).")
+    lines = [verdict, "", "| frame | fitted | PDE E_A | PDE E_M | B-spline E_A | B-spline E_M |",
              "|---:|:---:|---:|---:|---:|---:|"]
     fitted = res.fitted
     for k, f in enumerate(res.frames):

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .basis import space_basis_rates, time_basis_rates
+from .basis import space_basis_rates, time_basis_bound, time_basis_rates
 
 
 SHARED_U_TOL = 1e-12
@@ -126,9 +126,26 @@ class TimeSide:
     tn: np.ndarray
 
 
-def svd_normalized(a: np.ndarray):
-    """Column-normalised thin SVD of (batched) ``a``: ``a / n = q diag(sv) vt``."""
+UNSEEN = 1e-3
+"""A time function whose values at the fitted frames have a norm below this fraction of its
+largest value on the fitted interval (:func:`.basis.time_basis_bound`) is not fitted (constant
+0): fitting it would multiply what it fits by more than ``1 / UNSEEN`` between the frames.
+``sin(alpha s)`` at the Nyquist rate ``alpha = pi / ds`` of evenly spaced frames -- the upper
+end of the alpha search -- is rounding noise (~1e-14) at every frame and +-1 between them;
+column-normalised, it was a unit column whose constant (~1e17) made the curves explode there."""
+
+
+def svd_normalized(a: np.ndarray, peak: np.ndarray | None = None):
+    """Column-normalised thin SVD of (batched) ``a``: ``a / n = q diag(sv) vt``.
+
+    With ``peak`` (..., columns), the largest value of each column's function over the whole
+    interval its rows sample, a column whose norm is below :data:`UNSEEN` times it is zeroed
+    (singular value 0: dropped by every ``rcond`` mask) instead of being scaled up to unit norm."""
     n = np.linalg.norm(a, axis=-2)
+    if peak is not None:
+        seen = n > UNSEEN * peak
+        a = np.where(seen[..., None, :], a, 0.0)
+        n = np.where(seen, n, 0.0)
     n = np.where(n > 0, n, 1.0)
     q, sv, vt = np.linalg.svd(a / n[..., None, :], full_matrices=False)
     return q, sv, vt, n
@@ -153,10 +170,11 @@ def space_side(data: FitData, r) -> SpaceSide:
 
 
 def time_side(s: np.ndarray, alpha) -> TimeSide:
-    """Time side for the rates ``alpha`` (A,) at the normalised fitted times ``s`` (F,)."""
+    """Time side for the rates ``alpha`` (A,) at the normalised fitted times ``s`` (F,); a time
+    function the frames do not see is dropped (:data:`UNSEEN`)."""
     alpha = np.atleast_1d(np.asarray(alpha, dtype=float))
     tb = time_basis_rates(s, alpha)                                            # (A, F, 4)
-    return TimeSide(alpha, tb, *svd_normalized(tb))
+    return TimeSide(alpha, tb, *svd_normalized(tb, time_basis_bound(alpha)))
 
 
 def _mask(st: np.ndarray, su: np.ndarray, rcond: float) -> np.ndarray:
@@ -220,7 +238,7 @@ def leave_one_out(space: SpaceSide, s: np.ndarray, alpha, rcond: float) -> np.nd
     total = np.zeros((len(space.r), len(alpha)))
     for j in range(1, n_f - 1):               # held-out frames (a handful)
         keep = np.arange(n_f) != j
-        qk, st, vtt, tn = svd_normalized(tb[:, keep])
+        qk, st, vtt, tn = svd_normalized(tb[:, keep], time_basis_bound(alpha))
         qt = np.zeros((len(alpha), n_f, qk.shape[2]))
         qt[:, keep] = qk
         safe = np.where(st > 0, st, 1.0)
