@@ -126,3 +126,56 @@ def test_sphere_and_box_obstacles_are_never_entered():
     inside = np.all((p > [0.15, -0.4, -0.3]) & (p < [0.5, 0.4, -0.02]), axis=2)
     assert not inside.any()
     assert rec.energy_gain <= 0.01
+
+
+def u_shape(L=1.0, w=0.1, t=0.05, H=0.25):
+    """A horizontal U: two arms of thickness ``t`` joined at x = 0 by a web, the upper arm's
+    underside ``H - 2 t`` above the lower arm (three boxes, a soup)."""
+    import trimesh
+
+    return trimesh.util.concatenate([trimesh.creation.box(bounds=[[0, 0, 0], [L, w, t]]),
+                                     trimesh.creation.box(bounds=[[0, 0, 0], [t, w, H]]),
+                                     trimesh.creation.box(bounds=[[0, 0, H - t], [L, w, H]])])
+
+
+def test_self_contact_stops_a_body_folding_through_itself():
+    """The soft upper arm of a U sags onto the fixed lower arm: with self-contact (the lattice's
+    outer surface as the proxy) it stops on it; without, it passes 0.7 m through it."""
+    scene = Scene.from_mesh(u_shape(), resolution=32, youngs=1e7, density=1000.0, fill="solid",
+                            fix=["x<min+0.04", "z<min+0.04"])
+    V = scene.rest_vertices
+    upper = np.flatnonzero((V[:, 2] > 0.2 - 1e-9) & (V[:, 0] > 0.2))
+    low = {}
+    for on in (True, False):
+        rec = run_simulation(scene, method="ipc", duration=0.6, gravity=True, self_contact=on, friction=0.0)
+        low[on] = float(rec.points[:, upper, 2].min())
+        assert rec.energy_gain <= 0.01
+    assert low[True] >= 0.05                     # the lower arm's top
+    assert low[False] < -0.3
+
+
+def test_two_bodies_dropped_on_each_other_stay_apart():
+    """A soft block dropped onto another (one mesh, two bodies: their cubes share no node). Checked
+    from outside: manifold3d's intersection of the two deformed closed boxes is empty at every
+    frame, and the upper one came to lie on the lower one."""
+    import manifold3d
+
+    a = shapes.near_touching_boxes(gap=0.05)                # two 0.1 m cubes side by side
+    top = shapes.stacked_on(shapes.parts(a)[0], shapes.parts(a)[1], gap=0.05)
+    scene = Scene.from_mesh(top, resolution=24, youngs=1e6, density=500.0, fill="solid", keep="all")
+    V, F = scene.rest_vertices, scene.faces
+    rec = run_simulation(scene, duration=0.5, gravity=True, ground=float(V[:, 2].min()) - 0.01)
+    assert rec.info["bodies"] == 2
+    upper = V[:, 2] > 0.5 * (V[:, 2].min() + V[:, 2].max())
+    fu, fl = F[upper[F].all(axis=1)], F[(~upper)[F].all(axis=1)]
+
+    def solid(P, faces):
+        return manifold3d.Manifold(manifold3d.Mesh(vert_properties=np.asarray(P, dtype=np.float32),
+                                                   tri_verts=np.asarray(faces, dtype=np.uint32)))
+
+    for P in rec.points:
+        both = solid(P, fu) ^ solid(P, fl)
+        assert both.volume() <= 1e-9, f"the bodies overlap by {both.volume():.3g} m^3"
+    rest_gap = rec.points[-1, upper, 2].min() - rec.points[-1, ~upper, 2].max()
+    assert abs(rest_gap) < 0.005                       # the upper one lies on the lower one
+    assert rec.energy_gain <= 0.01

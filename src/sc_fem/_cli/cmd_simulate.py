@@ -45,6 +45,9 @@ def register(sub) -> None:
                         "step instead, which can add energy")
     p.add_argument("--friction", type=float, default=0.3,
                    help="Coulomb friction coefficient of the ipc contacts (default 0.3; 0: frictionless)")
+    p.add_argument("--no-self-contact", dest="self_contact", action="store_false",
+                   help="ipc: let a body pass through itself (by default the outer surface of its cube lattice "
+                        "keeps it from doing so; separate bodies always collide)")
     p.add_argument("--substeps", type=int, default=20, help="XPBD substeps per --dt step (default 20)")
     p.add_argument("--iterations", type=int, default=1, help="XPBD solver iterations per substep (default 1)")
     p.add_argument("--constraints", choices=("neohookean", "corotational", "distance"), default="neohookean",
@@ -103,7 +106,7 @@ def run(args) -> int:
         rec = run_simulation(
             scene, dt=args.dt, duration=args.duration, method=args.method, fps=args.fps, gravity=args.gravity,
             gust=args.gust, ground=args.ground, sphere=args.sphere, box=args.box, impulses=args.impulse,
-            friction=args.friction, rayleigh=args.rayleigh, newmark=NewmarkOptions(beta=args.beta, gamma=args.gamma, alpha=args.hht_alpha),
+            friction=args.friction, self_contact=args.self_contact, rayleigh=args.rayleigh, newmark=NewmarkOptions(beta=args.beta, gamma=args.gamma, alpha=args.hht_alpha),
             xpbd=XPBDOptions(substeps=args.substeps, iterations=args.iterations, constraints=args.constraints,
                              damping=args.xpbd_damping), element=args.element, up=args.up, progress=progress)
     with stage("write", timings, q):

@@ -53,9 +53,20 @@ DHAT_FRACTION = 1e-3
 CG_RTOL = 1e-8
 """Relative residual of the conjugate-gradient solves of a Newton step with contact."""
 
-CG_REFACTOR = 10
-"""CG iterations after which a Newton step with contact factorizes its Hessian (and keeps the
-factor as the preconditioner of the next ones)."""
+CG_REFACTOR = 8
+"""CG iterations of a contact solve past which the next one factorizes its Hessian (and keeps
+the factor as the preconditioner of the ones after it)."""
+
+CG_MAXITER = 40
+"""CG iterations after which a contact solve factorizes its Hessian at once."""
+
+CCD_TOLERANCE = 1e-4
+"""Tight Inclusion CCD's tolerance (its default 1e-6 took up to 3.3 s for one step of the chair's
+legs landing together, against 4 ms at 1e-4 with the same step, 0.25 instead of 0.2527: the
+answer stays conservative, only a little shorter)."""
+
+CCD_MAX_ITERATIONS = 100_000
+"""Tight Inclusion CCD's iteration cap (on reaching it, it returns a conservative step)."""
 
 GROUND_SPAN = 100.0
 """Half-width of the ground square in model sizes (bounding-box diagonals)."""
@@ -108,8 +119,129 @@ def obstacle_mesh(ob, centre: np.ndarray, size: float) -> tuple[np.ndarray, np.n
     raise InputError(f"unknown obstacle {ob!r}: use Ground, Sphere or Box")
 
 
+class _Layer:
+    """One collision mesh: moving vertices (rows ``P`` of the node DOFs) first, then static ones.
+
+    Parameters
+    ----------
+    rest : ndarray, shape (k, 3)
+        Rest positions, metres.
+    faces : ndarray of int, shape (f, 3)
+    can_collide : ipctk.CollisionFilter
+    P : scipy.sparse matrix, shape (3 n_moving, 3 m)
+        Moving-vertex displacements from node displacements (both metres).
+    dhat : float
+        Barrier activation distance of this layer, metres.
+    """
+
+    def __init__(self, rest: np.ndarray, faces: np.ndarray, can_collide, P, dhat: float) -> None:
+        ipctk = _ipctk()
+        self.rest = _f(rest)
+        F = np.asfortranarray(faces, dtype=np.int32).reshape(-1, 3)
+        E = ipctk.edges(F) if len(F) else np.zeros((0, 2), dtype=np.int32)
+        self.mesh = ipctk.CollisionMesh(self.rest, np.asfortranarray(E, dtype=np.int32), F)
+        self.mesh.can_collide = can_collide
+        self.P = sp.csr_matrix(P)
+        self.n_moving = self.P.shape[0] // 3
+        self.dhat = float(dhat)
+        self.Phi = self.PhiT = None
+
+    def bind(self, free_dofs: np.ndarray) -> None:
+        self.Phi = self.P[:, free_dofs].tocsr()
+        self.PhiT = self.Phi.T.tocsr()
+
+    def vertices(self, x: np.ndarray) -> np.ndarray:
+        V = np.array(self.rest)
+        V[: self.n_moving] += (self.Phi @ x).reshape(-1, 3)
+        return np.asfortranarray(V)
+
+    def collisions(self, V: np.ndarray):
+        col = _ipctk().NormalCollisions()
+        col.build(self.mesh, V, self.dhat)
+        return col
+
+    def to_dofs(self, g: np.ndarray) -> np.ndarray:
+        return self.PhiT @ g[: 3 * self.n_moving]
+
+    def hessian_to_dofs(self, H) -> sp.csr_matrix:
+        k = 3 * self.n_moving
+        return (self.PhiT @ sp.csr_matrix(H)[:k, :k] @ self.Phi).tocsr()
+
+
+@dataclass
+class ContactState:
+    """The collision meshes at one configuration: per layer, the vertices (metres) and the pairs
+    closer than its ``dhat`` (``ipctk.NormalCollisions``)."""
+
+    x: np.ndarray
+    V: list
+    col: list
+
+    @property
+    def n_pairs(self) -> int:
+        return sum(len(c) for c in self.col)
+
+
+def lattice_surface(model: CubeModel) -> np.ndarray:
+    """The outer surface of the cube lattice as triangles of lattice nodes, shape (f, 3).
+
+    Every cube face without a cube behind it becomes two triangles. The surface passes through
+    lattice nodes only, so two of its faces are either a cube edge apart or share a node: it is
+    free of intersections at rest whatever the source mesh is (the collision proxy of self-contact).
+    """
+    from .._validate import as_float_array  # noqa: F401  (keeps the import graph of this module flat)
+    from ..lattice.cubes import HEX_CORNERS
+
+    cells = np.asarray(model.cells, dtype=np.int64)
+    dims = np.asarray(model.dims, dtype=np.int64) + 2
+    key = lambda c: ((c[:, 0] + 1) * dims[1] + c[:, 1] + 1) * dims[2] + c[:, 2] + 1   # noqa: E731
+    occupied = np.sort(key(cells))
+    corner = {tuple(o): i for i, o in enumerate(HEX_CORNERS.tolist())}
+    tris = []
+    for a in range(3):                        # the 6 face directions
+        b, c = [k for k in range(3) if k != a]
+        for side in (0, 1):
+            step = np.zeros(3, dtype=np.int64)
+            step[a] = 2 * side - 1
+            nb = key(cells + step)
+            pos = np.searchsorted(occupied, nb)
+            open_ = occupied[np.minimum(pos, len(occupied) - 1)] != nb
+            quad = []
+            for ob, oc in ((0, 0), (1, 0), (1, 1), (0, 1)):
+                o = [0, 0, 0]
+                o[a], o[b], o[c] = side, ob, oc
+                quad.append(corner[tuple(o)])
+            q = model.hexes[open_][:, quad]
+            tris.append(np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]]))
+    return np.concatenate(tris)
+
+
+def node_bodies(model: CubeModel) -> np.ndarray:
+    """The mechanical body of every lattice node, shape (m,): nodes linked through cubes (cubes
+    that share any node move together)."""
+    from scipy.sparse.csgraph import connected_components
+
+    n = model.n_cubes
+    rows = np.repeat(np.arange(n), 8)
+    G = sp.csr_matrix((np.ones(8 * n), (rows, model.hexes.ravel())), shape=(n, model.n_nodes))
+    _, labels = connected_components(G.T @ G, directed=False)
+    return labels.astype(np.int32)
+
+
 class BarrierContact:
-    """The collision mesh of a run: the source surface (moving with the lattice) and static obstacles.
+    """The collision meshes of a run: the source surface moving with the lattice, static
+    obstacles, and the lattice's outer surface for self-contact.
+
+    Two layers, each an IPC Toolkit collision mesh with its own barrier:
+
+    * **source**: the source mesh (vertices ``rest + W u``) and the obstacles. Pairs of one body
+      are not tested (a source mesh may intersect itself at rest -- the chair's legs pass through
+      its seat -- and the lattice holds its parts together); pairs of different bodies (parts of
+      the lattice that share no node: objects in one scene) and body-obstacle pairs are.
+    * **self** (``self_contact=True``): the outer surface of the cube lattice
+      (:func:`lattice_surface`) as the collision proxy of each body with itself: intersection-free
+      at rest by construction, it keeps a body that folds onto itself from passing through itself.
+      It sits up to a cube outside the source surface, so a body touches itself up to a cube early.
 
     Parameters
     ----------
@@ -119,31 +251,30 @@ class BarrierContact:
     faces : array_like of int, shape (f, 3)
         Source-mesh triangles ((0, 3): the points collide as points).
     obstacles : sequence of Ground / Sphere / Box
-        Static obstacles (may be empty when ``bodies`` has several objects).
+        Static obstacles (none: only bodies against each other and themselves).
     W : scipy.sparse matrix, shape (n, m), optional
         Embedding of ``points`` (computed if omitted).
-    bodies : array_like of int, shape (n,), optional
-        Object of every vertex (:func:`merge_scenes`); pairs of one object are not tested,
-        pairs of different objects are. Default: one object.
     friction : float
         Coulomb coefficient ``mu`` (0: frictionless).
     dhat : float, optional
         Barrier activation distance, model units (default ``1e-3`` of the source's
-        bounding-box diagonal). Bodies rest about ``dhat / 2`` above what they lie on.
+        bounding-box diagonal). Bodies rest less than ``dhat`` above what they lie on.
     eps_v : float, optional
         Friction's static-dynamic transition speed, model units per second (default
         ``1e-3`` diagonals per second).
+    self_contact : bool
+        Add the self layer (default True).
 
     Raises
     ------
     InputError
         An obstacle cuts the source mesh at rest (a ground that the mesh merely touches, or cuts
         by less than ``dhat``, is lowered to ``dhat`` below its lowest vertex instead and the
-        shift is reported in ``ground_shift``), or objects overlap at rest.
+        shift is reported in ``ground_shift``), or bodies intersect each other at rest.
     """
 
-    def __init__(self, model: CubeModel, points, faces, obstacles=(), *, W=None, bodies=None,
-                 friction: float = 0.0, dhat: float | None = None, eps_v: float | None = None) -> None:
+    def __init__(self, model: CubeModel, points, faces, obstacles=(), *, W=None, friction: float = 0.0,
+                 dhat: float | None = None, eps_v: float | None = None, self_contact: bool = True) -> None:
         from .._validate import as_points
         from ..lattice.embed import embed
 
@@ -162,39 +293,43 @@ class BarrierContact:
         self.size = size
         self.dhat = DHAT_FRACTION * size if dhat is None else positive_scalar(dhat, "dhat")
         self.eps_v = DHAT_FRACTION * size if eps_v is None else positive_scalar(eps_v, "eps_v")
-        self.bodies = np.zeros(n, dtype=np.int32) if bodies is None else np.asarray(bodies, dtype=np.int32)
-        if self.bodies.shape != (n,):
-            raise InputError(f"bodies must have one entry per vertex ({n}), got shape {self.bodies.shape}")
-        self.ground_shift = 0.0
-        obstacles = tuple(self._placed(ob, pts) for ob in obstacles)
-        self.obstacles = obstacles
-        # static obstacle meshes after the moving vertices
-        Vs, Fs, ids = [pts], [tri[np.ptp(pts[tri], axis=1).max(axis=1) > 0] if tri.size else tri], [self.bodies]
-        off, nb = n, int(self.bodies.max()) + 1 if n else 1
-        centre = 0.5 * (lo + hi)
-        for k, ob in enumerate(obstacles):
-            V, F = obstacle_mesh(ob, centre, size)
-            Vs.append(V)
-            Fs.append(F + off)
-            ids.append(np.full(len(V), nb + k, dtype=np.int32))
-            off += len(V)
-        s = model.scale
-        self.n_moving = n
-        self.rest = _f(np.vstack(Vs) * s)                        # metres
-        F = np.ascontiguousarray(np.vstack(Fs), dtype=np.int32).reshape(-1, 3)
-        E = ipctk.edges(np.asfortranarray(F)) if len(F) else np.zeros((0, 2), dtype=np.int32)
-        self.mesh = ipctk.CollisionMesh(self.rest, np.asfortranarray(E, dtype=np.int32), np.asfortranarray(F))
-        self.mesh.can_collide = ipctk.make_static_obstacle_filter(n) & ipctk.make_vertex_patches_filter(
-            np.concatenate(ids).astype(np.int32))
         self.W = (embed(model, pts) if W is None else sp.csr_matrix(W))
         if self.W.shape != (n, model.n_nodes):
             raise InputError(f"W must have shape ({n}, {model.n_nodes}), got {self.W.shape}")
-        self.diag_m = size * s
-        self.dhat_m = self.dhat * s
-        self.eps_v_m = self.eps_v * s
-        self._Phi = None
-        if ipctk.has_intersections(self.mesh, self.rest):
-            raise InputError("the objects (or an object and an obstacle) intersect at rest: move them apart")
+        nb = node_bodies(model)
+        Wc = self.W.tocsr()
+        self.bodies = nb[Wc.indices[Wc.indptr[:-1]]] if n else np.zeros(0, dtype=np.int32)
+        self.n_bodies = int(nb.max()) + 1 if len(nb) else 0
+        self.ground_shift = 0.0
+        self.obstacles = tuple(self._placed(ob, pts) for ob in obstacles)
+        s = model.scale
+        self.diag_m, self.dhat_m, self.eps_v_m = size * s, self.dhat * s, self.eps_v * s
+        # source layer: the source mesh, then the static obstacle meshes
+        Vs, Fs, ids = [pts], [tri[np.ptp(pts[tri], axis=1).max(axis=1) > 0] if tri.size else tri], [self.bodies]
+        off, centre = n, 0.5 * (lo + hi)
+        for k, ob in enumerate(self.obstacles):
+            V, F = obstacle_mesh(ob, centre, size)
+            Vs.append(V)
+            Fs.append(F + off)
+            ids.append(np.full(len(V), self.n_bodies + k, dtype=np.int32))
+            off += len(V)
+        eye = sp.identity(3, format="csr")
+        layers = [_Layer(np.vstack(Vs) * s, np.vstack(Fs),
+                         ipctk.make_static_obstacle_filter(n) & ipctk.make_vertex_patches_filter(
+                             np.concatenate(ids).astype(np.int32)),
+                         sp.kron(self.W, eye, format="csr"), self.dhat_m)]
+        if ipctk.has_intersections(layers[0].mesh, layers[0].rest):
+            raise InputError("bodies of the model intersect each other or an obstacle at rest: move them apart "
+                             "(parts that share a cube are one body and may intersect)")
+        self.self_contact = bool(self_contact)
+        if self.self_contact:
+            surf = lattice_surface(model)
+            used, inv = np.unique(surf, return_inverse=True)
+            sel = sp.csr_matrix((np.ones(len(used)), (np.arange(len(used)), used)), shape=(len(used), model.n_nodes))
+            layers.append(_Layer(model.nodes_m[used], inv.reshape(-1, 3),
+                                 ~ipctk.make_vertex_patches_filter(nb[used]), sp.kron(sel, eye, format="csr"),
+                                 min(self.dhat_m, 0.1 * model.h)))
+        self.layers = layers
 
     # ------------------------------------------------------------------ set-up
     def _placed(self, ob, pts: np.ndarray):
@@ -212,45 +347,80 @@ class BarrierContact:
                          f"the deepest {worst:.4g} inside): move the obstacle or the model apart")
 
     def bind(self, free_dofs: np.ndarray) -> None:
-        """Set the DOF map ``Phi`` (3n x free DOFs, metres per metre) for these free DOFs."""
-        P = sp.kron(self.W, sp.identity(3, format="csr"), format="csr")
-        self._Phi = P[:, free_dofs].tocsr()
-        self._PhiT = self._Phi.T.tocsr()
+        """Restrict every layer's DOF map to these free DOFs (the integrator's)."""
+        for L in self.layers:
+            L.bind(free_dofs)
 
     # ------------------------------------------------------------------ evaluation
-    def vertices(self, x: np.ndarray) -> np.ndarray:
-        """Collision-mesh vertices (k, 3), metres, for free-DOF displacements ``x`` (m)."""
-        V = np.array(self.rest)
-        V[: self.n_moving] += (self._Phi @ x).reshape(-1, 3)
-        return np.asfortranarray(V)
+    def state(self, x: np.ndarray) -> ContactState:
+        """The layers' vertices and close pairs at free-DOF displacements ``x`` (m)."""
+        V = [L.vertices(x) for L in self.layers]
+        return ContactState(x=x, V=V, col=[L.collisions(v) for L, v in zip(self.layers, V)])
 
-    def collisions(self, V: np.ndarray):
-        """The pairs closer than ``dhat`` at vertices ``V`` (an ``ipctk.NormalCollisions``)."""
-        col = _ipctk().NormalCollisions()
-        col.build(self.mesh, V, self.dhat_m)
-        return col
+    def barrier(self, st: ContactState, kappa: float, need: str):
+        """The barrier ``kappa B`` at ``st``: energy (J), gradient or PSD-projected Hessian in free
+        DOFs (``need`` "e", "g" or "h"); ``kappa`` the physical stiffness."""
+        ipctk = _ipctk()
+        out = 0.0 if need != "h" else None
+        for L, V, col in zip(self.layers, st.V, st.col):
+            if not len(col):
+                continue
+            B = ipctk.BarrierPotential(L.dhat, kappa)
+            if need == "e":
+                out += float(B(col, L.mesh, V))
+            elif need == "g":
+                out = out + L.to_dofs(B.gradient(col, L.mesh, V))
+            else:
+                H = L.hessian_to_dofs(B.hessian(col, L.mesh, V, ipctk.PSDProjectionMethod.CLAMP))
+                out = H if out is None else out + H
+        return out
 
-    def to_dofs(self, g: np.ndarray) -> np.ndarray:
-        """``Phi^T g`` of a collision-mesh gradient (3k,) -> free DOFs."""
-        return self._PhiT @ g[: 3 * self.n_moving]
+    def lagged_friction(self, st: ContactState, kappa: float):
+        """IPC's lagged friction at ``st`` (the start of a step): per layer the tangential pairs and
+        their normal forces, or None without friction or contact."""
+        if self.friction <= 0 or not st.n_pairs:
+            return None
+        ipctk = _ipctk()
+        out = []
+        for L, V, col in zip(self.layers, st.V, st.col):
+            tc = ipctk.TangentialCollisions()
+            if len(col):
+                tc.build(L.mesh, V, col, ipctk.BarrierPotential(L.dhat, kappa), self.friction)
+            out.append(tc)
+        return out
 
-    def hessian_to_dofs(self, H) -> sp.csr_matrix:
-        """``Phi^T H Phi`` of a collision-mesh Hessian (3k, 3k) -> free DOFs."""
-        k = 3 * self.n_moving
-        Hm = sp.csr_matrix(H)[:k, :k]
-        return (self._PhiT @ Hm @ self._Phi).tocsr()
+    def friction_terms(self, fric, st: ContactState, st0: ContactState, dt: float, need: str):
+        """The friction term ``dt D((V - V_n) / dt)`` at ``st`` (``st0``: the step's start):
+        energy, gradient or PSD Hessian in free DOFs."""
+        ipctk = _ipctk()
+        D = ipctk.FrictionPotential(self.eps_v_m)
+        out = 0.0 if need != "h" else None
+        for L, V, V0, tc in zip(self.layers, st.V, st0.V, fric):
+            if not len(tc):
+                continue
+            vel = _f((V - V0) / dt)
+            if need == "e":
+                out += dt * float(D(tc, L.mesh, vel))
+            elif need == "g":
+                out = out + L.to_dofs(D.gradient(tc, L.mesh, vel))
+            else:
+                H = L.hessian_to_dofs(D.hessian(tc, L.mesh, vel, ipctk.PSDProjectionMethod.CLAMP)) / dt
+                out = H if out is None else out + H
+        return out
 
-    def stepsize(self, V0: np.ndarray, V1: np.ndarray) -> float:
-        """Largest ``alpha`` in [0, 1] with the straight path ``V0 -> V0 + alpha (V1 - V0)``
-        intersection-free (CCD)."""
-        return float(_ipctk().compute_collision_free_stepsize(self.mesh, V0, V1))
+    def stepsize(self, st: ContactState, x1: np.ndarray) -> float:
+        """Largest ``alpha`` in [0, 1] with the straight path from ``st`` towards ``x1``
+        intersection-free in every layer (CCD)."""
+        ipctk = _ipctk()
+        ccd = ipctk.TightInclusionCCD(CCD_TOLERANCE, CCD_MAX_ITERATIONS)
+        return min(float(ipctk.compute_collision_free_stepsize(L.mesh, V, L.vertices(x1), narrow_phase_ccd=ccd))
+                   for L, V in zip(self.layers, st.V))
 
-    def min_distance(self, V: np.ndarray, col=None) -> float:
-        """Smallest distance (m) of a moving vertex to anything it may collide with, at most
-        ``dhat`` (``inf`` when nothing is closer); ``col``: the collisions at ``V`` if known."""
-        col = self.collisions(V) if col is None else col
-        return float(np.sqrt(col.compute_minimum_distance(self.mesh, V))) if len(col) else np.inf
-
+    def min_distance_sq(self, st: ContactState) -> float:
+        """Smallest squared distance (m^2) of any close pair at ``st`` (``inf`` with none)."""
+        d = [float(col.compute_minimum_distance(L.mesh, V)) for L, V, col in zip(self.layers, st.V, st.col)
+             if len(col)]
+        return min(d) if d else np.inf
 
 @dataclass
 class _Step:
@@ -296,7 +466,7 @@ class IPC(TimeIntegrator):
         self.stats = _Step()
         self._kappa = None            # barrier stiffness in IPC's h^2-scaled units, and its maximum
         self._kappa_max = None
-        self._last = None             # (x, V, collisions) of the last state _advance returned
+        self._last = None             # the ContactState of the last state _advance returned
         super().__init__(model, dt, **kw)
         dt = self.dt
         a0, a1 = self.rayleigh
@@ -304,6 +474,7 @@ class IPC(TimeIntegrator):
         self._S = ((1.0 / dt**2 + a0 / dt) * self.M + (1.0 + a1 / dt) * self.K).tocsr()
         self._Sfac = factorize(self._S, self.backend)
         self._pre = self._Sfac
+        self._stale = False
         self.stats.factorizations += 1
         self._mass_avg = float(self.M.diagonal().mean()) if self.M.shape[0] else 1.0
         if contact is not None:
@@ -313,18 +484,15 @@ class IPC(TimeIntegrator):
             self._scale_x = float(np.linalg.norm(np.ptp(model.nodes_m, axis=0))) or 1.0
 
     # ------------------------------------------------------------------ energy of a state
+    def _state_at(self, x: np.ndarray) -> ContactState:
+        last = self._last
+        return last if last is not None and last.x is x else self.barrier.state(x)
+
     def contact_energy(self, x: np.ndarray) -> float:
         """Barrier energy ``kappa B`` (J) at free-DOF displacements ``x``."""
-        c = self.barrier
-        if c is None or self._kappa is None:
+        if self.barrier is None or self._kappa is None:
             return 0.0
-        last = self._last
-        if last is not None and last[0] is x:                 # the state _advance just made
-            V, col = last[1], last[2]
-        else:
-            V = c.vertices(x)
-            col = c.collisions(V)
-        return float(self._B()(col, c.mesh, V)) if len(col) else 0.0
+        return float(self.barrier.barrier(self._state_at(x), self._kphys(), "e"))
 
     def energy(self):
         from .base import Energy
@@ -334,18 +502,18 @@ class IPC(TimeIntegrator):
 
     @property
     def info(self) -> dict:
-        s = self.stats
+        s, c = self.stats, self.barrier
         return {"newton_iterations": s.newton, "factorizations": s.factorizations, "contact_steps": s.contact_steps,
-                "line_search_cuts": s.line_search_cuts,
-                "cg_iterations": s.cg_iterations,
-                "dhat": None if self.barrier is None else self.barrier.dhat,
-                "friction": None if self.barrier is None else self.barrier.friction,
-                "ground_shift": None if self.barrier is None else self.barrier.ground_shift}
+                "line_search_cuts": s.line_search_cuts, "cg_iterations": s.cg_iterations,
+                "dhat": None if c is None else c.dhat, "friction": None if c is None else c.friction,
+                "ground_shift": None if c is None else c.ground_shift,
+                "self_contact": None if c is None else c.self_contact,
+                "bodies": None if c is None else c.n_bodies}
 
     # ------------------------------------------------------------------ the potential
-    def _B(self):
-        """The barrier potential with the current physical stiffness (N/m^... per ipctk's scaling)."""
-        return _ipctk().BarrierPotential(self.barrier.dhat_m, self._kappa / self.dt**2)
+    def _kphys(self) -> float:
+        """The physical barrier stiffness: IPC's (for the ``h^2``-scaled potential) over ``h^2``."""
+        return self._kappa / self.dt**2
 
     def _smooth(self, x, u, ut, f) -> tuple[float, np.ndarray]:
         """Energy and gradient of the terms without contact."""
@@ -361,59 +529,48 @@ class IPC(TimeIntegrator):
             g = g + Cd / dt
         return e, g
 
-    def _contact_terms(self, x, V, col, fric, Vn, need: str):
-        """Barrier + friction: energy, gradient or Hessian (``need``) in free DOFs."""
-        ipctk = _ipctk()
+    def _contact(self, st: ContactState, fric, st0: ContactState, need: str):
+        """Barrier + friction at ``st``: energy, gradient or Hessian (``need``) in free DOFs."""
         c = self.barrier
-        B = self._B()
-        dt = self.dt
-        if need == "e":
-            e = float(B(col, c.mesh, V)) if len(col) else 0.0
-            if fric is not None:
-                e += dt * float(fric[0](fric[1], c.mesh, _f((V - Vn) / dt)))
-            return e
-        if need == "g":
-            g = c.to_dofs(B.gradient(col, c.mesh, V)) if len(col) else 0.0
-            if fric is not None:
-                g = g + c.to_dofs(fric[0].gradient(fric[1], c.mesh, _f((V - Vn) / dt)))
-            return g
-        H = c.hessian_to_dofs(B.hessian(col, c.mesh, V, ipctk.PSDProjectionMethod.CLAMP)) if len(col) else None
+        out = c.barrier(st, self._kphys(), need)
         if fric is not None:
-            Hf = c.hessian_to_dofs(fric[0].hessian(fric[1], c.mesh, _f((V - Vn) / dt),
-                                                   ipctk.PSDProjectionMethod.CLAMP)) / dt
-            H = Hf if H is None else H + Hf
-        return H
+            f = c.friction_terms(fric, st, st0, self.dt, need)
+            out = f if out is None else (out if f is None else out + f)
+        return out
 
-    def _update_kappa(self, x, u, ut, f, V, col) -> None:
+    def _update_kappa(self, x, u, ut, f, st: ContactState) -> None:
         """IPC's adaptive barrier stiffness: set from the gradients at the step's start, never lowered."""
         ipctk = _ipctk()
         c = self.barrier
-        dt2 = self.dt**2
         _, gE = self._smooth(x, u, ut, f)
-        gB = c.to_dofs(ipctk.BarrierPotential(c.dhat_m, 1.0).gradient(col, c.mesh, V)) if len(col) else 0 * x
+        gB = c.barrier(st, 1.0, "g") if st.n_pairs else 0 * x
+        gB = gB if np.ndim(gB) else 0 * x
         k, kmax = ipctk.initial_barrier_stiffness(c.diag_m, ipctk.BarrierPotential(c.dhat_m, 1.0).barrier, c.dhat_m,
-                                                  self._mass_avg, dt2 * gE, gB)
+                                                  self._mass_avg, self.dt**2 * gE, gB)
         self._kappa = max(k, self._kappa or 0.0)
         self._kappa_max = max(kmax, self._kappa_max or 0.0)
 
     def _solve_contact(self, H, g: np.ndarray) -> np.ndarray:
         """``H^-1 g`` for ``H = S + (contact Hessian)``: conjugate gradients preconditioned with the
         latest factorization (first ``S``'s, then that of an earlier Newton iteration's ``H``: while
-        the contacts change little it preconditions well); ``H`` is factorized, and that factor kept,
-        when CG needs more than ``CG_REFACTOR`` iterations."""
+        the contacts change little it preconditions well). A solve that needs more than
+        ``CG_REFACTOR`` iterations makes the next one factorize its ``H`` (kept as the new
+        preconditioner); CG that does not converge in ``CG_MAXITER`` factorizes at once."""
         from scipy.sparse.linalg import LinearOperator, cg
 
-        count = [0]
+        if not self._stale:
+            count = [0]
 
-        def tick(_):
-            count[0] += 1
+            def tick(_):
+                count[0] += 1
 
-        pre = LinearOperator(H.shape, matvec=self._pre.solve, dtype=float)
-        y, info = cg(H, g, rtol=CG_RTOL, atol=0.0, maxiter=CG_REFACTOR, M=pre, callback=tick)
-        self.stats.cg_iterations += count[0]
-        if info == 0:
-            return y
-        self._pre = factorize(H, self.backend)
+            pre = LinearOperator(H.shape, matvec=self._pre.solve, dtype=float)
+            y, info = cg(H, g, rtol=CG_RTOL, atol=0.0, maxiter=CG_MAXITER, M=pre, callback=tick)
+            self.stats.cg_iterations += count[0]
+            self._stale = count[0] > CG_REFACTOR
+            if info == 0:
+                return y
+        self._pre, self._stale = factorize(H, self.backend), False
         self.stats.factorizations += 1
         return self._pre.solve(g)
 
@@ -432,48 +589,36 @@ class IPC(TimeIntegrator):
             self.stats.newton += 1
             v1 = (x - u) / dt
             return x, v1, (v1 - v) / dt
-        last = self._last
-        if last is not None and last[0] is u:
-            V, col = last[1], last[2]
-        else:
-            V = c.vertices(x)
-            col = c.collisions(V)
-        if self._kappa is None or len(col):
-            self._update_kappa(x, u, ut, f, V, col)
-        fric = None
-        if c.friction > 0 and len(col):                  # lagged friction: contacts and forces of x_n
-            ipctk = _ipctk()
-            tc = ipctk.TangentialCollisions()
-            tc.build(c.mesh, V, col, self._B(), c.friction)
-            fric = (ipctk.FrictionPotential(c.eps_v_m), tc)
-        Vn = V
+        st0 = self._state_at(u)
+        st = ContactState(x=x, V=st0.V, col=st0.col)
+        if self._kappa is None or st.n_pairs:
+            self._update_kappa(x, u, ut, f, st)
+        fric = c.lagged_friction(st0, self._kphys())    # contacts and normal forces of x_n
         tol_x = self.tol * self._scale_x
         contact_seen = False
-        prev_d = c.min_distance(V, col) ** 2 if len(col) else np.inf
+        prev_d = c.min_distance_sq(st)
         for it in range(self.max_newton):
             self.stats.newton += 1
             e_s, g = self._smooth(x, u, ut, f)
-            quadratic = not len(col) and fric is None
+            quadratic = not st.n_pairs and fric is None
             if quadratic:
                 p = -self._Sfac.solve(g)
             else:
                 contact_seen = True
-                g = g + self._contact_terms(x, V, col, fric, Vn, "g")
-                H = self._S + self._contact_terms(x, V, col, fric, Vn, "h")
+                g = g + self._contact(st, fric, st0, "g")
+                H = self._S + self._contact(st, fric, st0, "h")
                 p = -self._solve_contact(H.tocsr(), g)
             if float(np.abs(p).max(initial=0.0)) <= tol_x:
                 break
-            V1 = c.vertices(x + p)
-            alpha = min(1.0, c.stepsize(V, V1))
-            e0 = e_s + (self._contact_terms(x, V, col, fric, Vn, "e") if not quadratic else 0.0)
+            alpha = min(1.0, c.stepsize(st, x + p))
+            e0 = e_s + (self._contact(st, fric, st0, "e") if not quadratic else 0.0)
             gp = float(g @ p)
             while True:
                 xt = x + alpha * p
-                Vt = c.vertices(xt)
-                colt = c.collisions(Vt)
+                stt = c.state(xt)
                 et = self._smooth(xt, u, ut, f)[0]
-                if len(colt) or fric is not None:
-                    et += self._contact_terms(xt, Vt, colt, fric, Vn, "e")
+                if stt.n_pairs or fric is not None:
+                    et += self._contact(stt, fric, st0, "e")
                 if et <= e0 + 1e-4 * alpha * gp + 1e-12 * abs(e0) or alpha < 1e-12:
                     break
                 alpha *= 0.5
@@ -481,11 +626,11 @@ class IPC(TimeIntegrator):
             if alpha < 1e-12:
                 raise InstabilityError(f"ipc: the line search stalled at step {self.n_steps + 1} "
                                        f"(t = {t1:.6g} s, dt = {dt:.4g} s); try a smaller dt")
-            x, V, col = xt, Vt, colt
-            if quadratic and alpha == 1.0 and not len(col):
+            x, st = xt, stt
+            if quadratic and alpha == 1.0 and not st.n_pairs:
                 break                                   # the exact minimiser of the quadratic, still free
-            if len(col):
-                d = float(col.compute_minimum_distance(c.mesh, V))
+            if st.n_pairs:
+                d = c.min_distance_sq(st)
                 if np.isfinite(prev_d):
                     self._kappa = _ipctk().update_barrier_stiffness(prev_d, d, self._kappa_max, self._kappa,
                                                                     c.diag_m)
@@ -494,7 +639,7 @@ class IPC(TimeIntegrator):
             raise InstabilityError(f"ipc: Newton did not converge in {self.max_newton} iterations at step "
                                    f"{self.n_steps + 1} (t = {t1:.6g} s, dt = {dt:.4g} s); try a smaller dt")
         self.stats.contact_steps += int(contact_seen)
-        self._last = (x, V, col)
+        self._last = st
         v1 = (x - u) / dt
         return x, v1, (v1 - v) / dt
 

@@ -78,7 +78,7 @@ def default_dt(method: str, fps: float) -> float:
 
 def run_simulation(scene, *, duration: float, dt: float | None = None, method: str = "auto", fps: float = 50.0,
                    gravity: bool = False, gust=None, ground=None, sphere=None, box=None, impulses=(),
-                   friction: float = 0.3, rayleigh=(0.0, 0.0), newmark: NewmarkOptions = NewmarkOptions(),
+                   friction: float = 0.3, self_contact: bool = True, rayleigh=(0.0, 0.0), newmark: NewmarkOptions = NewmarkOptions(),
                    xpbd: XPBDOptions = XPBDOptions(), element: str | None = None, up: str = "z",
                    progress: bool = False):
     """Simulate ``scene`` for ``duration`` s and record its source vertices.
@@ -112,6 +112,10 @@ def run_simulation(scene, *, duration: float, dt: float | None = None, method: s
         1.5 cube edges of its vertex (:func:`sc_fem.dynamics.loads.impulse_nodes`).
     friction : float
         Coulomb friction coefficient of the contacts of ``"ipc"`` (default 0.3; 0: frictionless).
+    self_contact : bool
+        ``"ipc"``: keep each body from passing through itself, with the lattice's outer surface as
+        its collision proxy (default True; :class:`~sc_fem.dynamics.ipc.BarrierContact`). Bodies
+        (parts of the lattice that share no node) always collide with each other.
     rayleigh : (a0, a1)
         Rayleigh damping ``C = a0 M + a1 K``.
     newmark, xpbd : NewmarkOptions, XPBDOptions
@@ -165,8 +169,8 @@ def run_simulation(scene, *, duration: float, dt: float | None = None, method: s
         if method == "ipc":
             if newmark != NewmarkOptions():
                 raise InputError("beta, gamma and the HHT alpha apply to the Newmark methods; 'ipc' is backward Euler")
-            kw["contact"] = BarrierContact(model, verts, scene.faces, obstacles, W=scene.W,
-                                           friction=friction) if obstacles else None
+            kw["contact"] = BarrierContact(model, verts, scene.faces, obstacles, W=scene.W, friction=friction,
+                                           self_contact=self_contact)
         else:
             kw["contact"] = Contact(model, verts, obstacles, W=scene.W) if obstacles else None
             if method != "central":
@@ -208,5 +212,5 @@ def run_simulation(scene, *, duration: float, dt: float | None = None, method: s
             "dt_crit": dtc, "scale": model.scale, "cubes": model.n_cubes, **rec.info,
             "implicit": bool(integ.implicit), "warnings": warnings,
             "contact_tol": None if getattr(integ, "contact", None) is None else float(integ.contact.tol),
-            "friction": friction if method == "ipc" and obstacles else None}
+            "friction": friction if method == "ipc" else None}
     return replace(rec, info=info)
