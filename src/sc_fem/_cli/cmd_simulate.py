@@ -70,6 +70,8 @@ def register(sub) -> None:
     p.add_argument("--impulse", type=float, nargs=4, action="append", default=[],
                    metavar=("VERTEX", "JX", "JY", "JZ"),
                    help="impulse in N s on a source vertex at t = 0 (repeatable)")
+    p.add_argument("--velocity", type=float, nargs=3, default=None, metavar=("VX", "VY", "VZ"),
+                   help="initial velocity of the whole model, m/s (a thrown model)")
     p.add_argument("--gust", type=float, nargs=4, default=None, metavar=("FX", "FY", "FZ", "SECONDS"),
                    help="total force in N over all vertices, half-sine pulse lasting SECONDS")
     p.add_argument("--fps", type=float, default=50.0, help="frames per second stored (default 50)")
@@ -106,7 +108,7 @@ def run(args) -> int:
         rec = run_simulation(
             scene, dt=args.dt, duration=args.duration, method=args.method, fps=args.fps, gravity=args.gravity,
             gust=args.gust, ground=args.ground, sphere=args.sphere, box=args.box, impulses=args.impulse,
-            friction=args.friction, self_contact=args.self_contact, rayleigh=args.rayleigh, newmark=NewmarkOptions(beta=args.beta, gamma=args.gamma, alpha=args.hht_alpha),
+            velocity=args.velocity, friction=args.friction, self_contact=args.self_contact, rayleigh=args.rayleigh, newmark=NewmarkOptions(beta=args.beta, gamma=args.gamma, alpha=args.hht_alpha),
             xpbd=XPBDOptions(substeps=args.substeps, iterations=args.iterations, constraints=args.constraints,
                              damping=args.xpbd_damping), element=args.element, up=args.up, progress=progress)
     with stage("write", timings, q):

@@ -78,7 +78,7 @@ def default_dt(method: str, fps: float) -> float:
 
 def run_simulation(scene, *, duration: float, dt: float | None = None, method: str = "auto", fps: float = 50.0,
                    gravity: bool = False, gust=None, ground=None, sphere=None, box=None, impulses=(),
-                   friction: float = 0.3, self_contact: bool = True, rayleigh=(0.0, 0.0), newmark: NewmarkOptions = NewmarkOptions(),
+                   velocity=None, friction: float = 0.3, self_contact: bool = True, rayleigh=(0.0, 0.0), newmark: NewmarkOptions = NewmarkOptions(),
                    xpbd: XPBDOptions = XPBDOptions(), element: str | None = None, up: str = "z",
                    progress: bool = False):
     """Simulate ``scene`` for ``duration`` s and record its source vertices.
@@ -110,6 +110,8 @@ def run_simulation(scene, *, duration: float, dt: float | None = None, method: s
     impulses : sequence of (vertex, Jx, Jy, Jz)
         Impulses in N s on source vertices at t = 0, each spread over the lattice mass within
         1.5 cube edges of its vertex (:func:`sc_fem.dynamics.loads.impulse_nodes`).
+    velocity : (vx, vy, vz), optional
+        Initial velocity of the whole model, m/s (a thrown model); impulses add to it.
     friction : float
         Coulomb friction coefficient of the contacts of ``"ipc"`` (default 0.3; 0: frictionless).
     self_contact : bool
@@ -151,6 +153,7 @@ def run_simulation(scene, *, duration: float, dt: float | None = None, method: s
     if method == "xpbd":
         unsupported = [name for name, on in (
             ("gust", gust is not None), ("impulse", impulses is not None and bool(len(impulses))),
+            ("velocity", velocity is not None),
             ("ground", ground is not None), ("sphere", sphere is not None), ("box", box is not None),
             ("rayleigh", any(rayleigh)), ("beta/gamma/hht-alpha", newmark != NewmarkOptions())) if on]
         if unsupported:
@@ -166,6 +169,8 @@ def run_simulation(scene, *, duration: float, dt: float | None = None, method: s
             loads.append(VertexForce(np.arange(len(verts)), np.array([fx, fy, fz]) / len(verts), half_sine(secs)))
         loadset = LoadSet(model, loads, points=verts, faces=scene.faces, W=scene.W)
         kw = {"fixed_nodes": scene.fixed_nodes, "loads": loadset, "rayleigh": tuple(rayleigh), "element": element}
+        if velocity is not None:
+            kw["v0"] = np.broadcast_to(as_float_array(velocity, "velocity (vx, vy, vz)", (3,)), (model.n_nodes, 3))
         if method == "ipc":
             if newmark != NewmarkOptions():
                 raise InputError("beta, gamma and the HHT alpha apply to the Newmark methods; 'ipc' is backward Euler")
@@ -212,5 +217,6 @@ def run_simulation(scene, *, duration: float, dt: float | None = None, method: s
             "dt_crit": dtc, "scale": model.scale, "cubes": model.n_cubes, **rec.info,
             "implicit": bool(integ.implicit), "warnings": warnings,
             "contact_tol": None if getattr(integ, "contact", None) is None else float(integ.contact.tol),
-            "friction": friction if method == "ipc" else None}
+            "friction": friction if method == "ipc" else None,
+            "velocity": None if velocity is None else [float(x) for x in velocity]}
     return replace(rec, info=info)
