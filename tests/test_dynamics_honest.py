@@ -84,3 +84,17 @@ def test_the_issues_first_command_completes(tmp_path, capsys):
     assert rc == 0 and out.exists()
     text = capsys.readouterr().out
     assert "ipc" in text and "no vertex ever through an obstacle" in text
+
+
+def test_a_projected_contact_run_that_blows_up_names_a_setting_that_works(tmp_path, capsys):
+    """The issue's chair on the ground with the old projection contact (``--method newmark``) blows
+    up at step 2; the message names --method ipc (not "reduce dt", which did not help), and that
+    setting completes the same run."""
+    argv = ["simulate", "builtin:chair", "--gravity", "--ground", "0", "-r", "16", "--duration", "0.1",
+            "--dt", "1e-3", "-o", str(tmp_path / "x.npz"), "--no-progress", "--quiet"]
+    assert main(argv + ["--method", "newmark"]) == 2
+    err = capsys.readouterr().err
+    assert "blew up" in err and "--method ipc" in err and "Traceback" not in err
+    assert not (tmp_path / "x.npz").exists()
+    assert main(argv + ["--method", "ipc"]) == 0
+    assert (tmp_path / "x.npz").exists()

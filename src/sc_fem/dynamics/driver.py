@@ -113,6 +113,10 @@ def _blowup_message(integ, state_time: float, step: int, why: str) -> str:
         crit = f"dt_crit could not be computed ({exc})"
     if integ.name == "xpbd":
         hint = "use more substeps (or constraints='corotational')"
+    elif getattr(integ, "contact", None) is not None:
+        hint = ("this method pushes vertices out of the obstacles after each step, which feeds energy into "
+                "the model: use --method ipc (method='ipc'), which keeps contact inside the step and is stable "
+                "at any dt")
     elif not integ.implicit:
         hint = "use dt < dt_crit or an implicit method (--method newmark)"
     else:
