@@ -98,3 +98,20 @@ def test_a_projected_contact_run_that_blows_up_names_a_setting_that_works(tmp_pa
     assert not (tmp_path / "x.npz").exists()
     assert main(argv + ["--method", "ipc"]) == 0
     assert (tmp_path / "x.npz").exists()
+
+
+def test_a_point_force_is_shared_by_the_mass_around_its_vertex():
+    """VertexForce's default: the force on one vertex is shared by the nodes of its patch in
+    proportion to their mass (the same sharing as an impulse); the total force is kept."""
+    from sc_fem.dynamics.loads import LoadSet, VertexForce
+
+    scene = Scene.from_mesh(shapes.slatted_chair(), resolution=16)
+    V, model = scene.rest_vertices, scene.model
+    vertex, F = int(np.argmax(V[:, 2])), np.array([5.0, 0.0, -2.0])
+    f = LoadSet(model, [VertexForce([vertex], F)], points=V, W=scene.W).force(0.0)
+    np.testing.assert_allclose(f, impulse_nodes(model, V, [vertex], [F]), rtol=1e-12)
+    np.testing.assert_allclose(f.sum(axis=0), F, rtol=1e-12)
+    on = np.abs(f).sum(axis=1) > 0
+    assert on.sum() >= 8                                      # at least the 8 nodes of its cube
+    acc = f[on] / model.node_masses()[on, None]
+    np.testing.assert_allclose(acc, np.broadcast_to(acc[0], acc.shape), rtol=1e-12)   # one acceleration

@@ -121,7 +121,7 @@ def test_load_patterns_match_the_dense_scatter(rng):
     f = rng.standard_normal((len(idx), 3))
     fidx = np.array([1, 4, 4, 7])                         # repeated faces add up
     pr = rng.uniform(1.0, 2.0, len(fidx))
-    ld = LoadSet(model, [VertexForce(idx, f), FacePressure(fidx, pr)], points=pts, faces=tri, W=W)
+    ld = LoadSet(model, [VertexForce(idx, f, spread="embedding"), FacePressure(fidx, pr)], points=pts, faces=tri, W=W)
     vf = np.zeros((len(pts), 3))
     np.add.at(vf, idx, f)
     vp = np.zeros((len(pts), 3))

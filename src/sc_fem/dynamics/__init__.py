@@ -1,5 +1,6 @@
-"""Dynamics of the lattice: the implicit (Newmark, corotational), explicit (central differences)
-and XPBD integrators, loads, contact, and the driver that runs and records them."""
+"""Dynamics of the lattice: the implicit (IPC backward Euler with contact inside the step, Newmark,
+corotational), explicit (central differences) and XPBD integrators, loads, contact, and the driver
+that runs and records them."""
 
 from .._lazy import lazy_getattr
 from .rope_scene import rope_scene  # bound eagerly: it shares its module's name
@@ -14,6 +15,7 @@ _NAMES = {
     "half_sine": ".loads",
     "run_simulation": ".job", "XPBDOptions": ".job", "NewmarkOptions": ".job",
     "Contact": ".contact", "Ground": ".contact", "Sphere": ".contact", "Box": ".contact",
+    "IPC": ".ipc", "BarrierContact": ".ipc", "impulse_nodes": ".loads",
     "XPBDSolver": ".xpbd", "XPBDState": ".xpbd", "simulate_xpbd": ".xpbd",
     "RopeScene": ".rope_scene",
 }

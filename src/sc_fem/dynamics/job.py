@@ -166,7 +166,8 @@ def run_simulation(scene, *, duration: float, dt: float | None = None, method: s
         loads = [Gravity(g)] if gravity else []
         if gust is not None:
             fx, fy, fz, secs = as_float_array(gust, "gust (Fx, Fy, Fz, seconds)", (4,))
-            loads.append(VertexForce(np.arange(len(verts)), np.array([fx, fy, fz]) / len(verts), half_sine(secs)))
+            loads.append(VertexForce(np.arange(len(verts)), np.array([fx, fy, fz]) / len(verts), half_sine(secs),
+                                     spread="embedding"))
         loadset = LoadSet(model, loads, points=verts, faces=scene.faces, W=scene.W)
         kw = {"fixed_nodes": scene.fixed_nodes, "loads": loadset, "rayleigh": tuple(rayleigh), "element": element}
         if velocity is not None:

@@ -5,8 +5,9 @@ Every load ends up as lattice node forces ``(m, 3)`` in newtons:
 * :class:`Gravity` -- each node gets its lumped mass times ``g`` (m/s^2), as in
   :func:`sc_fem.fem.static.solve_static`; it is the only load with a potential energy
   (``-f_g . u``, reported in the energy of a run).
-* :class:`VertexForce` -- forces (N) on source-mesh vertices, mapped with ``W^T``
-  (:func:`sc_fem.lattice.embed.embed`), times a scalar time profile ``time(t)``.
+* :class:`VertexForce` -- forces (N) on source-mesh vertices, shared by the lattice mass around
+  each vertex (default) or mapped with ``W^T`` (:func:`sc_fem.lattice.embed.embed`), times a
+  scalar time profile ``time(t)``.
 * :class:`FacePressure` -- a pressure (Pa) on source-mesh faces, acting against the face normal
   of the rest geometry (``F = -p A n``, area in m^2 = model area x scale^2), split equally over
   the face's 3 vertices and mapped with ``W^T``, times ``time(t)``.
@@ -80,11 +81,18 @@ class VertexForce:
         Force per vertex, N (a (3,) force is applied to each vertex).
     time : callable, optional
         Scalar profile ``time(t)`` multiplying the force (default 1).
+    spread : {"mass", "embedding"}
+        ``"mass"`` (default): each vertex's force is shared by the lattice nodes within 1.5 cube
+        edges of it in proportion to their mass (:func:`impulse_nodes`): the force acts on a patch
+        of material, so a vertex inside a sliver cube does not tear away. ``"embedding"``: ``W^T f``
+        (the virtual-work transpose of the trilinear map; for forces already spread over many
+        vertices, such as a gust on all of them).
     """
 
     vertices: object
     force: object
     time: Profile | None = None
+    spread: str = "mass"
 
 
 @dataclass(frozen=True, eq=False)
@@ -148,8 +156,13 @@ class LoadSet:
                 idx = self._indices(ld.vertices, len(pts), "vertices")
                 f = np.broadcast_to(as_float_array(ld.force, "force"), (len(idx), 3)) if \
                     np.ndim(ld.force) == 1 else as_float_array(ld.force, "force", (len(idx), 3))
-                # W^T of the vertex forces: only the rows of the loaded vertices (repeats add up)
-                self._timed.append((np.asarray(self.W[idx].T @ f), ld.time or _one))
+                if ld.spread == "mass":
+                    pattern = impulse_nodes(model, pts, idx, f)
+                elif ld.spread == "embedding":          # W^T: only the rows of the loaded vertices (repeats add up)
+                    pattern = np.asarray(self.W[idx].T @ f)
+                else:
+                    raise InputError(f"VertexForce spread must be 'mass' or 'embedding', got {ld.spread!r}")
+                self._timed.append((pattern, ld.time or _one))
             elif isinstance(ld, FacePressure):
                 self._need(pts, "FacePressure")
                 if faces is None:
@@ -188,7 +201,8 @@ class LoadSet:
 
 
 def impulse_nodes(model: CubeModel, points, vertices, impulses, *, radius: float = PATCH_RADIUS) -> np.ndarray:
-    """Node impulses (m, 3), N s, for impulses on source vertices, spread over the mass around each.
+    """Node impulses (m, 3), N s, for impulses on source vertices, spread over the mass around each
+    (or node forces, N, for point forces: the same sharing, :class:`VertexForce` ``spread="mass"``).
 
     An impulse ``J`` on vertex ``p`` is shared by the lattice nodes within ``radius`` cube edges
     of ``p`` (at least the 8 nodes of its cube) in proportion to their lumped masses ``m_i``:
