@@ -206,3 +206,29 @@ def test_a_column_left_on_the_ground_rests_at_its_static_sag(poisson):
         st = solve_static(Scene.from_mesh(col, **opts, fix="z<min+0.001"), gravity=(0, 0, -9.81))
         ref = st.vertex_displacements[top, 2].mean() - st.vertex_displacements[bottom, 2].mean()
         assert sag == pytest.approx(ref, rel=0.02)
+
+
+def test_a_step_that_newton_cannot_finish_is_cut_in_two():
+    """With Newton starved of iterations, contact steps are cut into half steps (and still
+    intersection-free); with none that can converge, the error says what was tried and why."""
+    from sc_fem.dynamics.contact import Ground
+    from sc_fem.dynamics.driver import record
+    from sc_fem.dynamics.ipc import MAX_HALVINGS, IPC, BarrierContact
+    from sc_fem.dynamics.loads import Gravity, LoadSet
+    from sc_fem.errors import InstabilityError
+
+    scene = Scene.from_mesh("builtin:chair", resolution=8)
+    V = scene.rest_vertices
+    g = float(V[:, 2].min()) - 0.02
+
+    def integ(n):
+        c = BarrierContact(scene.model, V, scene.faces, [Ground(g)], W=scene.W, friction=0.0)
+        return IPC(scene.model, 0.02, contact=c, loads=LoadSet(scene.model, [Gravity((0, 0, -9.81))]), max_newton=n)
+
+    it = integ(4)
+    rec = record(it, 15, scene=scene)
+    assert it.info["halvings"] > 0
+    assert rec.points[:, :, 2].min() >= g
+    assert rec.energy_gain <= 0.01
+    with pytest.raises(InstabilityError, match=f"dt / {2 ** MAX_HALVINGS}"):
+        record(integ(1), 15, scene=scene)

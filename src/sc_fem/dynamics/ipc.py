@@ -53,6 +53,9 @@ DHAT_FRACTION = 1e-3
 CG_RTOL = 1e-8
 """Relative residual of the conjugate-gradient solves of a Newton step with contact."""
 
+MAX_HALVINGS = 3
+"""A step whose Newton solve does not converge is cut in two, at most this many times nested."""
+
 CG_REFACTOR = 8
 """CG iterations of a contact solve past which the next one factorizes its Hessian (and keeps
 the factor as the preconditioner of the ones after it)."""
@@ -132,10 +135,15 @@ class _Layer:
         Moving-vertex displacements from node displacements (both metres).
     dhat : float
         Barrier activation distance of this layer, metres.
+    keep : tuple
+        The filters ``can_collide`` was composed of (kept alive with the mesh).
     """
 
-    def __init__(self, rest: np.ndarray, faces: np.ndarray, can_collide, P, dhat: float) -> None:
+    def __init__(self, rest: np.ndarray, faces: np.ndarray, can_collide, P, dhat: float, keep=()) -> None:
         ipctk = _ipctk()
+        # ipctk's composed filters (a & b, ~a) refer to their operands without owning them: the
+        # operands must live as long as the mesh (freed, they made ipctk segfault at random)
+        self._keep = (can_collide, *keep)
         self.rest = _f(rest)
         F = np.asfortranarray(faces, dtype=np.int32).reshape(-1, 3)
         E = ipctk.edges(F) if len(F) else np.zeros((0, 2), dtype=np.int32)
@@ -314,10 +322,10 @@ class BarrierContact:
             ids.append(np.full(len(V), self.n_bodies + k, dtype=np.int32))
             off += len(V)
         eye = sp.identity(3, format="csr")
-        layers = [_Layer(np.vstack(Vs) * s, np.vstack(Fs),
-                         ipctk.make_static_obstacle_filter(n) & ipctk.make_vertex_patches_filter(
-                             np.concatenate(ids).astype(np.int32)),
-                         sp.kron(self.W, eye, format="csr"), self.dhat_m)]
+        static = ipctk.make_static_obstacle_filter(n)
+        patches = ipctk.make_vertex_patches_filter(np.concatenate(ids).astype(np.int32))
+        layers = [_Layer(np.vstack(Vs) * s, np.vstack(Fs), static & patches, sp.kron(self.W, eye, format="csr"),
+                         self.dhat_m, keep=(static, patches))]
         if ipctk.has_intersections(layers[0].mesh, layers[0].rest):
             raise InputError("bodies of the model intersect each other or an obstacle at rest: move them apart "
                              "(parts that share a cube are one body and may intersect)")
@@ -326,9 +334,9 @@ class BarrierContact:
             surf = lattice_surface(model)
             used, inv = np.unique(surf, return_inverse=True)
             sel = sp.csr_matrix((np.ones(len(used)), (np.arange(len(used)), used)), shape=(len(used), model.n_nodes))
-            layers.append(_Layer(model.nodes_m[used], inv.reshape(-1, 3),
-                                 ~ipctk.make_vertex_patches_filter(nb[used]), sp.kron(sel, eye, format="csr"),
-                                 min(self.dhat_m, 0.1 * model.h)))
+            other_bodies = ipctk.make_vertex_patches_filter(nb[used].astype(np.int32))
+            layers.append(_Layer(model.nodes_m[used], inv.reshape(-1, 3), ~other_bodies, sp.kron(sel, eye, format="csr"),
+                                 min(self.dhat_m, 0.1 * model.h), keep=(other_bodies,)))
         self.layers = layers
 
     # ------------------------------------------------------------------ set-up
@@ -422,6 +430,10 @@ class BarrierContact:
              if len(col)]
         return min(d) if d else np.inf
 
+class _NotConverged(Exception):
+    """A Newton solve of :class:`IPC` that did not converge (the step is then cut in two)."""
+
+
 @dataclass
 class _Step:
     """Counters of the Newton iterations of a run (``IPC.info``)."""
@@ -431,6 +443,7 @@ class _Step:
     contact_steps: int = 0
     line_search_cuts: int = 0
     cg_iterations: int = 0
+    halvings: int = 0
 
 
 class IPC(TimeIntegrator):
@@ -446,15 +459,16 @@ class IPC(TimeIntegrator):
         Newton stops when the largest step of a vertex-free DOF is below ``tol`` times the
         model size (default 1e-5).
     max_newton : int
-        Newton iterations per step at most (default 60); a step that does not converge raises
-        :class:`~sc_fem.errors.InstabilityError` naming ``dt``.
+        Newton iterations per solve at most (default 100). A step whose solve does not converge
+        is cut into two half steps, up to ``MAX_HALVINGS`` times nested (counted in
+        ``info["halvings"]``); past that :class:`~sc_fem.errors.InstabilityError` says why.
     """
 
     name = "ipc"
     implicit = True
 
     def __init__(self, model, dt, *, contact: BarrierContact | None = None, tol: float = 1e-5,
-                 max_newton: int = 60, **kw) -> None:
+                 max_newton: int = 100, **kw) -> None:
         if contact is not None and not isinstance(contact, BarrierContact):
             raise InputError(f"contact must be a BarrierContact for method 'ipc', got {type(contact).__name__}")
         if contact is not None and contact.model.n_nodes != model.n_nodes:
@@ -468,14 +482,12 @@ class IPC(TimeIntegrator):
         self._kappa_max = None
         self._last = None             # the ContactState of the last state _advance returned
         super().__init__(model, dt, **kw)
-        dt = self.dt
         a0, a1 = self.rayleigh
         self._C = None if not (a0 or a1) else (a0 * self.M + a1 * self.K).tocsr()
-        self._S = ((1.0 / dt**2 + a0 / dt) * self.M + (1.0 + a1 / dt) * self.K).tocsr()
-        self._Sfac = factorize(self._S, self.backend)
-        self._pre = self._Sfac
-        self._stale = False
-        self.stats.factorizations += 1
+        self._levels: dict = {}       # step length -> (S, its factorization)
+        self._h = self.dt             # the length of the (sub)step being solved
+        self._S, self._Sfac = self._level(self.dt)
+        self._pre, self._pre_h, self._stale = self._Sfac, self.dt, False
         self._mass_avg = float(self.M.diagonal().mean()) if self.M.shape[0] else 1.0
         if contact is not None:
             contact.bind(self.asm.free_dofs)
@@ -505,19 +517,29 @@ class IPC(TimeIntegrator):
         s, c = self.stats, self.barrier
         return {"newton_iterations": s.newton, "factorizations": s.factorizations, "contact_steps": s.contact_steps,
                 "line_search_cuts": s.line_search_cuts, "cg_iterations": s.cg_iterations,
+                "halvings": s.halvings,
                 "dhat": None if c is None else c.dhat, "friction": None if c is None else c.friction,
                 "ground_shift": None if c is None else c.ground_shift,
                 "self_contact": None if c is None else c.self_contact,
                 "bodies": None if c is None else c.n_bodies}
 
     # ------------------------------------------------------------------ the potential
+    def _level(self, h: float):
+        """``S = (1/h^2 + a0/h) M + (1 + a1/h) K`` for a (sub)step ``h`` and its factorization (kept)."""
+        if h not in self._levels:
+            a0, a1 = self.rayleigh
+            S = ((1.0 / h**2 + a0 / h) * self.M + (1.0 + a1 / h) * self.K).tocsr()
+            self._levels[h] = (S, factorize(S, self.backend))
+            self.stats.factorizations += 1
+        return self._levels[h]
+
     def _kphys(self) -> float:
         """The physical barrier stiffness: IPC's (for the ``h^2``-scaled potential) over ``h^2``."""
         return self._kappa / self.dt**2
 
     def _smooth(self, x, u, ut, f) -> tuple[float, np.ndarray]:
-        """Energy and gradient of the terms without contact."""
-        dt = self.dt
+        """Energy and gradient of the terms without contact (step length ``self._h``)."""
+        dt = self._h
         dx = x - ut
         Mdx = self.M @ dx
         Kx = self.K @ x
@@ -534,7 +556,7 @@ class IPC(TimeIntegrator):
         c = self.barrier
         out = c.barrier(st, self._kphys(), need)
         if fric is not None:
-            f = c.friction_terms(fric, st, st0, self.dt, need)
+            f = c.friction_terms(fric, st, st0, self._h, need)
             out = f if out is None else (out if f is None else out + f)
         return out
 
@@ -545,8 +567,8 @@ class IPC(TimeIntegrator):
         _, gE = self._smooth(x, u, ut, f)
         gB = c.barrier(st, 1.0, "g") if st.n_pairs else 0 * x
         gB = gB if np.ndim(gB) else 0 * x
-        k, kmax = ipctk.initial_barrier_stiffness(c.diag_m, ipctk.BarrierPotential(c.dhat_m, 1.0).barrier, c.dhat_m,
-                                                  self._mass_avg, self.dt**2 * gE, gB)
+        B = ipctk.BarrierPotential(c.dhat_m, 1.0)       # alive through the call: .barrier is B's own, not a copy
+        k, kmax = ipctk.initial_barrier_stiffness(c.diag_m, B.barrier, c.dhat_m, self._mass_avg, self.dt**2 * gE, gB)
         self._kappa = max(k, self._kappa or 0.0)
         self._kappa_max = max(kmax, self._kappa_max or 0.0)
 
@@ -576,19 +598,50 @@ class IPC(TimeIntegrator):
 
     # ------------------------------------------------------------------ one step
     def _advance(self, u, v, a, t0, t1):
+        dt = self.dt
+        if self.barrier is None:                        # linear backward Euler: one back-solve
+            self._h = dt
+            _, g = self._smooth(u, u, u + dt * v, self.external_force(t1))
+            x = u - self._Sfac.solve(g)
+            self.stats.newton += 1
+        else:
+            x = self._substeps(u, v, t0, t1, 0)[0]
+        v1 = (x - u) / dt
+        return x, v1, (v1 - v) / dt
+
+    def _substeps(self, u, v, t0, t1, depth: int):
+        """``(x, v)`` at ``t1`` from ``(u, v)`` at ``t0``: one Newton solve, or, when it does not
+        converge, two half steps (at most ``MAX_HALVINGS`` times nested)."""
         from ..errors import InstabilityError
 
-        dt = self.dt
-        f = self.external_force(t1)
-        ut = u + dt * v
+        try:
+            x = self._newton(u, v, t1, t1 - t0)
+        except _NotConverged as exc:
+            if depth >= MAX_HALVINGS:
+                m = self.model
+                raise InstabilityError(
+                    f"ipc: {exc} at step {self.n_steps + 1} (t = {t1:.6g} s), not even with the step cut to "
+                    f"dt / {2 ** MAX_HALVINGS} = {(t1 - t0):.3g} s: raise max_newton (now {self.max_newton}), or "
+                    f"check that the model is not far softer than meant for its size (E = "
+                    f"{float(np.median(m.youngs)):.3g} Pa over {float(np.linalg.norm(np.ptp(m.nodes_m, axis=0))):.3g} "
+                    f"m; a model in millimetres read as metres is 1000 times too large)") from None
+            self.stats.halvings += 1
+            tm = 0.5 * (t0 + t1)
+            xm, vm = self._substeps(u, v, t0, tm, depth + 1)
+            return self._substeps(xm, vm, tm, t1, depth + 1)
+        return x, (x - u) / (t1 - t0)
+
+    def _newton(self, u, v, t1, h):
+        """Minimise the incremental potential of a step of length ``h`` from ``(u, v)``; returns ``x``.
+        Raises ``_NotConverged``."""
         c = self.barrier
+        self._h = h
+        S, Sfac = self._level(h)
+        if self._pre_h != h:
+            self._pre, self._pre_h, self._stale = Sfac, h, False
+        f = self.external_force(t1)
+        ut = u + h * v
         x = u.copy()
-        if c is None:                                   # linear backward Euler: one back-solve
-            _, g = self._smooth(x, u, ut, f)
-            x = x - self._Sfac.solve(g)
-            self.stats.newton += 1
-            v1 = (x - u) / dt
-            return x, v1, (v1 - v) / dt
         st0 = self._state_at(u)
         st = ContactState(x=x, V=st0.V, col=st0.col)
         if self._kappa is None or st.n_pairs:
@@ -602,12 +655,11 @@ class IPC(TimeIntegrator):
             e_s, g = self._smooth(x, u, ut, f)
             quadratic = not st.n_pairs and fric is None
             if quadratic:
-                p = -self._Sfac.solve(g)
+                p = -Sfac.solve(g)
             else:
                 contact_seen = True
                 g = g + self._contact(st, fric, st0, "g")
-                H = self._S + self._contact(st, fric, st0, "h")
-                p = -self._solve_contact(H.tocsr(), g)
+                p = -self._solve_contact((S + self._contact(st, fric, st0, "h")).tocsr(), g)
             if float(np.abs(p).max(initial=0.0)) <= tol_x:
                 break
             alpha = min(1.0, c.stepsize(st, x + p))
@@ -624,8 +676,7 @@ class IPC(TimeIntegrator):
                 alpha *= 0.5
                 self.stats.line_search_cuts += 1
             if alpha < 1e-12:
-                raise InstabilityError(f"ipc: the line search stalled at step {self.n_steps + 1} "
-                                       f"(t = {t1:.6g} s, dt = {dt:.4g} s); try a smaller dt")
+                raise _NotConverged("the line search stalled")
             x, st = xt, stt
             if quadratic and alpha == 1.0 and not st.n_pairs:
                 break                                   # the exact minimiser of the quadratic, still free
@@ -636,12 +687,10 @@ class IPC(TimeIntegrator):
                                                                     c.diag_m)
                 prev_d = d
         else:
-            raise InstabilityError(f"ipc: Newton did not converge in {self.max_newton} iterations at step "
-                                   f"{self.n_steps + 1} (t = {t1:.6g} s, dt = {dt:.4g} s); try a smaller dt")
+            raise _NotConverged(f"Newton did not converge in {self.max_newton} iterations")
         self.stats.contact_steps += int(contact_seen)
         self._last = st
-        v1 = (x - u) / dt
-        return x, v1, (v1 - v) / dt
+        return x
 
     @property
     def max_contact_depth(self) -> float:
