@@ -232,3 +232,19 @@ def test_a_step_that_newton_cannot_finish_is_cut_in_two():
     assert rec.energy_gain <= 0.01
     with pytest.raises(InstabilityError, match=f"dt / {2 ** MAX_HALVINGS}.*raise max_newton"):
         record(integ(1), 6, scene=scene)
+
+
+def test_a_plate_of_eight_vertices_does_not_sag_through_the_ground():
+    """A plate whose mesh has only its 8 corners: contact is on its surface, not only at its
+    vertices (before, the corners stayed on the ground while the plate's middle fell 1.3 m through
+    it). Checked on a grid of points across its bottom face, followed through the lattice."""
+    from sc_fem.lattice.embed import embed
+
+    mesh = shapes.plate()
+    scene, rec, ground, potential, size = drop(mesh, gap=5.0)             # from 5 cm
+    xs, ys = np.meshgrid(np.linspace(-0.49, 0.49, 25), np.linspace(-0.24, 0.24, 13))
+    bottom = np.column_stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)])
+    W = embed(scene.model, bottom)
+    z = np.array([bottom[:, 2] + (W @ u)[:, 2] / scene.model.scale for u in rec.u])
+    assert z.min() >= ground - 1e-3 * size, f"the plate's bottom went {ground - z.min():.3g} m below the ground"
+    check_drop(scene, rec, ground, potential, size)

@@ -242,7 +242,8 @@ class BarrierContact:
 
     Two layers, each an IPC Toolkit collision mesh with its own barrier:
 
-    * **source**: the source mesh (vertices ``rest + W u``) and the obstacles. Pairs of one body
+    * **source**: the source mesh (vertices ``rest + W u``; its triangles split until no edge is
+      longer than a cube, the new vertices embedded like the others) and the obstacles. Pairs of one body
       are not tested (a source mesh may intersect itself at rest -- the chair's legs pass through
       its seat -- and the lattice holds its parts together); pairs of different bodies (parts of
       the lattice that share no node: objects in one scene) and body-obstacle pairs are.
@@ -301,9 +302,21 @@ class BarrierContact:
         self.size = size
         self.dhat = DHAT_FRACTION * size if dhat is None else positive_scalar(dhat, "dhat")
         self.eps_v = DHAT_FRACTION * size if eps_v is None else positive_scalar(eps_v, "eps_v")
-        self.W = (embed(model, pts) if W is None else sp.csr_matrix(W))
-        if self.W.shape != (n, model.n_nodes):
-            raise InputError(f"W must have shape ({n}, {model.n_nodes}), got {self.W.shape}")
+        W = (embed(model, pts) if W is None else sp.csr_matrix(W))
+        if W.shape != (n, model.n_nodes):
+            raise InputError(f"W must have shape ({n}, {model.n_nodes}), got {W.shape}")
+        # the collision surface: the source triangles split until no edge is longer than a cube, so
+        # that a coarse mesh (a plate of 8 vertices) cannot let the lattice sag through an obstacle
+        # between its vertices; the new vertices lie on the source surface, embedded like the others
+        tri = tri[np.ptp(pts[tri], axis=1).max(axis=1) > 0] if tri.size else tri
+        if tri.size:
+            import trimesh
+
+            pts_c, tri = trimesh.remesh.subdivide_to_size(pts, tri, max_edge=model.pitch, max_iter=12)
+            if len(pts_c) > n:
+                W = sp.vstack([W, embed(model, pts_c[n:])]).tocsr()
+                pts, n = pts_c, len(pts_c)
+        self.W = W
         nb = node_bodies(model)
         Wc = self.W.tocsr()
         self.bodies = nb[Wc.indices[Wc.indptr[:-1]]] if n else np.zeros(0, dtype=np.int32)
@@ -313,7 +326,7 @@ class BarrierContact:
         s = model.scale
         self.diag_m, self.dhat_m, self.eps_v_m = size * s, self.dhat * s, self.eps_v * s
         # source layer: the source mesh, then the static obstacle meshes
-        Vs, Fs, ids = [pts], [tri[np.ptp(pts[tri], axis=1).max(axis=1) > 0] if tri.size else tri], [self.bodies]
+        Vs, Fs, ids = [pts], [tri], [self.bodies]
         off, centre = n, 0.5 * (lo + hi)
         for k, ob in enumerate(self.obstacles):
             V, F = obstacle_mesh(ob, centre, size)
