@@ -136,8 +136,11 @@ def test_components_keep_and_connectivity():
     mesh = trimesh.util.concatenate([a, b])
     allm = sc_fem.voxelize(mesh, pitch=0.25, fill="solid", keep="all")
     assert allm.n_components == 2 and list(allm.component_sizes) == [64, 8]
-    big = sc_fem.voxelize(mesh, pitch=0.25, fill="solid")
+    big = sc_fem.voxelize(mesh, pitch=0.25, fill="solid", keep="largest")
     assert big.n_cubes == 64 and big.info["components_found"] == 2 and big.info["dropped_cubes"] == 8
+    # the default keeps every body that is not loose: the small box is 1/8 of the large one's mass
+    both = sc_fem.voxelize(mesh, pitch=0.25, fill="solid")
+    assert both.n_cubes == 72 and both.info["bodies"] == 2 and both.info["dropped_cubes"] == 0
     # two cubes touching along an edge only: separate with face connectivity, joined with edge
     cells = np.array([[0, 0, 0], [1, 1, 0]])
     m1 = sc_fem.CubeModel.from_cells(cells, origin=[0, 0, 0], pitch=1.0, mass=1, youngs=1, poisson=0.3, density=1)

@@ -193,7 +193,7 @@ class ContactState:
 def lattice_surface(model: CubeModel) -> np.ndarray:
     """The outer surface of the cube lattice as triangles of lattice nodes, shape (f, 3).
 
-    Every cube face without a cube behind it becomes two triangles. The surface passes through
+    Every cube face without a cube of the same body behind it becomes two triangles. The surface passes through
     lattice nodes only, so two of its faces are either a cube edge apart or share a node: it is
     free of intersections at rest whatever the source mesh is (the collision proxy of self-contact).
     """
@@ -202,7 +202,10 @@ def lattice_surface(model: CubeModel) -> np.ndarray:
 
     cells = np.asarray(model.cells, dtype=np.int64)
     dims = np.asarray(model.dims, dtype=np.int64) + 2
-    key = lambda c: ((c[:, 0] + 1) * dims[1] + c[:, 1] + 1) * dims[2] + c[:, 2] + 1   # noqa: E731
+    piece = np.asarray(model.piece, dtype=np.int64)
+    n_p = int(piece.max()) + 1 if len(piece) else 1
+    # a cube face is open when no cube of the same body lies behind it (bodies sharing a cell are apart)
+    key = lambda c: (((c[:, 0] + 1) * dims[1] + c[:, 1] + 1) * dims[2] + c[:, 2] + 1) * n_p + piece  # noqa: E731
     occupied = np.sort(key(cells))
     corner = {tuple(o): i for i, o in enumerate(HEX_CORNERS.tolist())}
     tris = []

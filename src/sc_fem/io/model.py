@@ -18,7 +18,7 @@ MODEL_KIND = "sc_fem.cubemodel"
 
 def save_model(model: CubeModel, path) -> Path:
     """Write ``model`` atomically as ``.npz`` (see :func:`load_model`) or ``.vtu`` (hexahedra with
-    per-cube mass, E, nu, rho and component as cell data, node coordinates in model units)."""
+    per-cube mass, E, nu, rho, component and body as cell data, node coordinates in model units)."""
     path = Path(path)
     ext = path.suffix.lower()
     if ext == ".npz":
@@ -29,6 +29,8 @@ def save_model(model: CubeModel, path) -> Path:
             poisson=model.poisson, density=model.density, connectivity=np.str_(model.connectivity),
             fraction=model.fraction, stiffness=np.str_(model.stiffness),
             **({} if model.moments is None else {"moments": model.moments}),
+            piece=model.piece,
+            **({} if model.sites is None else {"sites": model.sites, "site_piece": model.site_piece}),
             info_json=np.str_(json.dumps(model.info, default=str)))
     if ext == ".vtu":
         import meshio
@@ -39,7 +41,7 @@ def save_model(model: CubeModel, path) -> Path:
                         cell_data={"mass_kg": [model.mass], "youngs_Pa": [model.youngs],
                                    "fraction": [model.fraction],
                                    "poisson": [model.poisson], "density_kg_m3": [model.density],
-                                   "component": [model.component]})
+                                   "component": [model.component], "body": [model.piece]})
         with atomic_path(path, suffix=".vtu") as tmp:
             meshio.write(str(tmp), m, file_format="vtu")
         return path
@@ -55,4 +57,7 @@ def load_model(path) -> CubeModel:
                                 fraction=d["fraction"] if "fraction" in d else 1.0,
                                 stiffness=str(d["stiffness"]) if "stiffness" in d else "full",
                                 moments=d["moments"] if "moments" in d else None,
+                                piece=d["piece"] if "piece" in d else None,
+                                sites=d["sites"] if "sites" in d else None,
+                                site_piece=d["site_piece"] if "site_piece" in d else None,
                                 info=json.loads(str(d["info_json"])))

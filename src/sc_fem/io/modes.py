@@ -92,6 +92,8 @@ def save_modes(basis: ModalBasis, path) -> Path:
                       lattice_youngs=lat.youngs, lattice_poisson=lat.poisson, lattice_density=lat.density,
                       lattice_fraction=lat.fraction, lattice_stiffness=np.str_(lat.stiffness),
                       **({} if lat.moments is None else {"lattice_moments": lat.moments}),
+                      lattice_piece=lat.piece,
+                      **({} if lat.sites is None else {"lattice_sites": lat.sites, "lattice_site_piece": lat.site_piece}),
                       lattice_node_modes=np.asarray(basis.node_modes, dtype=np.float32))
     _check_arrays(arrays, path)        # never write a file we would refuse to read
     return save_npz_atomic(path, **arrays)
@@ -188,7 +190,10 @@ def load_modes(path) -> ModalBasis:
                 youngs=data["lattice_youngs"], poisson=data["lattice_poisson"], density=data["lattice_density"],
                 fraction=data["lattice_fraction"] if "lattice_fraction" in data else 1.0,
                 stiffness=str(data["lattice_stiffness"]) if "lattice_stiffness" in data else "full",
-                moments=data["lattice_moments"] if "lattice_moments" in data else None)
+                moments=data["lattice_moments"] if "lattice_moments" in data else None,
+                piece=data["lattice_piece"] if "lattice_piece" in data else None,
+                sites=data["lattice_sites"] if "lattice_sites" in data else None,
+                site_piece=data["lattice_site_piece"] if "lattice_site_piece" in data else None)
         except InputError as exc:
             raise FileFormatError(f"{path}: invalid lattice: {exc}") from None
         node_modes = data["lattice_node_modes"]

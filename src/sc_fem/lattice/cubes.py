@@ -94,6 +94,15 @@ class CubeModel:
         Number of connected components in this model.
     info : dict
         Provenance and statistics (samples, method, fill, dropped cubes, ...).
+    piece : ndarray of int, shape (n,)
+        Body of each cube (:mod:`sc_fem.geometry.bodies`; all 0 for one body). Cubes of different
+        bodies may occupy the same cell: each has its own nodes (virtual nodes), and nodes are
+        shared only between cubes of one body.
+    sites : ndarray, shape (s, 3), or None
+        Points of the source surface (model units) with their bodies in ``site_piece``: a point
+        is located in the cube of the body of its nearest site (:meth:`piece_at`).
+    site_piece : ndarray of int, shape (s,), or None
+        Body of each site.
     """
 
     origin: np.ndarray
@@ -114,13 +123,20 @@ class CubeModel:
     moments: np.ndarray | None = None
     connectivity: str = "face"
     info: dict = field(default_factory=dict)
+    piece: np.ndarray | None = None
+    sites: np.ndarray | None = None
+    site_piece: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.piece is None:
+            object.__setattr__(self, "piece", np.zeros(len(self.cells), dtype=np.int64))
 
     # ------------------------------------------------------------------ construction
     @classmethod
     def from_cells(cls, cells, *, origin, pitch: float, mass, youngs, poisson, density,
                    scale: float = 1.0, dims=None, connectivity: str = "face",
                    info: dict | None = None, fraction=1.0, stiffness: str = "full",
-                   moments=None) -> "CubeModel":
+                   moments=None, piece=None, sites=None, site_piece=None) -> "CubeModel":
         """Build a model from occupied lattice cells and per-cube properties.
 
         Parameters
@@ -145,6 +161,11 @@ class CubeModel:
             Grid size; defaults to ``cells.max(0) + 1``.
         connectivity : {"face", "edge", "vertex"}
             Neighbourhood for component labelling.
+        piece : array_like of int, shape (n,), optional
+            Body of each cube (default all 0). A cell may hold one cube per body; nodes are shared
+            only between cubes of the same body.
+        sites, site_piece : array_like, shapes (s, 3) and (s,), optional
+            Points on the source surface and their bodies (see :meth:`piece_at`).
         """
         cells = np.asarray(cells)
         if cells.ndim != 2 or cells.shape[1] != 3 or len(cells) == 0:
@@ -183,22 +204,35 @@ class CubeModel:
         dims = cells.max(axis=0) + 1 if dims is None else np.asarray(dims, dtype=np.int64)
         if np.any(cells.max(axis=0) >= dims):
             raise InputError(f"cells exceed the grid dims {tuple(dims)}")
-        # sort cells lexicographically (stable, deterministic numbering)
+        piece = np.zeros(n, np.int64) if piece is None else np.asarray(piece)
+        if piece.shape != (n,) or not np.issubdtype(piece.dtype, np.integer) or piece.min() < 0:
+            raise InputError(f"piece must be ({n},) non-negative integers, got {piece.shape} {piece.dtype}")
+        piece = piece.astype(np.int64)
+        if (sites is None) != (site_piece is None):
+            raise InputError("give sites and site_piece together")
+        if sites is not None:
+            sites = as_float_array(sites, "sites")
+            site_piece = np.asarray(site_piece, dtype=np.int64)
+            if sites.ndim != 2 or sites.shape[1] != 3 or site_piece.shape != (len(sites),):
+                raise InputError(f"sites must be (s, 3) with site_piece (s,), got {sites.shape}, {site_piece.shape}")
+        # sort cells lexicographically, then by body (stable, deterministic numbering)
         lin = np.ravel_multi_index(cells.T, dims)
-        order = np.argsort(lin, kind="stable")
-        if np.any(np.diff(lin[order]) == 0):
-            raise InputError("cells contain duplicate lattice indices")
-        cells, mass, youngs, poisson, density, fraction = (a[order] for a in (cells, mass, youngs, poisson, density,
-                                                                             fraction))
+        key = lin * (int(piece.max()) + 1) + piece
+        order = np.argsort(key, kind="stable")
+        if np.any(np.diff(key[order]) == 0):
+            raise InputError("cells contain duplicate lattice indices (of the same piece)")
+        cells, mass, youngs, poisson, density, fraction, piece = (
+            a[order] for a in (cells, mass, youngs, poisson, density, fraction, piece))
         moments = None if moments is None else moments[order]
 
-        node_index, hexes = _nodes_and_hexes(cells, dims)
+        node_index, hexes = _nodes_and_hexes(cells, dims, piece)
         nodes = origin + pitch * node_index.astype(float)
-        component = _components(cells, dims, connectivity)
+        component = _components(cells, dims, connectivity, piece)
         return cls(origin=origin, pitch=pitch, scale=scale, dims=np.asarray(dims, dtype=np.int64),
                    cells=cells, mass=mass, youngs=youngs, poisson=poisson, density=density,
                    nodes=nodes, node_index=node_index, hexes=hexes, component=component, fraction=fraction,
-                   stiffness=stiffness, moments=moments, connectivity=connectivity, info=dict(info or {}))
+                   stiffness=stiffness, moments=moments, connectivity=connectivity, info=dict(info or {}),
+                   piece=piece, sites=sites, site_piece=site_piece)
 
     @classmethod
     def box(cls, shape, pitch: float, *, youngs: float = 200e9, poisson: float = 0.3,
@@ -246,6 +280,27 @@ class CubeModel:
     def component_sizes(self) -> np.ndarray:
         """Cubes per component, largest first."""
         return np.bincount(self.component)
+
+    @property
+    def n_pieces(self) -> int:
+        """Number of bodies with cubes in this model (1 unless cells hold cubes of several bodies)."""
+        return len(np.unique(self.piece))
+
+    @property
+    def shares_cells(self) -> bool:
+        """Whether some cell holds cubes of more than one body."""
+        lin = np.ravel_multi_index(self.cells.T, self.dims)
+        return bool(np.any(np.diff(lin) == 0))
+
+    def piece_at(self, points: np.ndarray) -> np.ndarray:
+        """Body of each point (n, 3), model units: that of the nearest site (all 0 without sites)."""
+        points = np.asarray(points, dtype=float).reshape(-1, 3)
+        if self.sites is None or not len(self.sites):
+            return np.zeros(len(points), np.int64)
+        from scipy.spatial import cKDTree
+
+        _, i = cKDTree(self.sites).query(points)
+        return self.site_piece[i]
 
     @property
     def total_mass(self) -> float:
@@ -310,7 +365,8 @@ class CubeModel:
                                     poisson=self.poisson[mask], density=self.density[mask],
                                     fraction=self.fraction[mask], stiffness=self.stiffness,
                                     moments=None if self.moments is None else self.moments[mask],
-                                    connectivity=self.connectivity, info=dict(self.info))
+                                    connectivity=self.connectivity, info=dict(self.info), piece=self.piece[mask],
+                                    sites=self.sites, site_piece=self.site_piece)
 
     def with_info(self, **kw) -> "CubeModel":
         """A copy with ``info`` updated."""
@@ -322,23 +378,58 @@ class CubeModel:
                 f"{self.n_components} component(s), mass={self.total_mass:g} kg)")
 
 
-def _nodes_and_hexes(cells: np.ndarray, dims: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unique corner nodes of the cubes and the (n, 8) connectivity, vectorized."""
+def _nodes_and_hexes(cells: np.ndarray, dims: np.ndarray, piece: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unique corner nodes of the cubes and the (n, 8) connectivity, vectorized: a node is a
+    (grid corner, body) pair, so cubes of different bodies in one cell share no node."""
     corners = cells[:, None, :] + HEX_CORNERS[None, :, :]          # (n, 8, 3)
     ndims = np.asarray(dims, dtype=np.int64) + 1
     lin = np.ravel_multi_index(corners.reshape(-1, 3).T, ndims)    # (8n,)
-    uniq, inverse = np.unique(lin, return_inverse=True)
-    node_index = np.stack(np.unravel_index(uniq, ndims), axis=1).astype(np.int64)
+    n_p = int(piece.max()) + 1 if len(piece) else 1
+    uniq, inverse = np.unique(lin * n_p + np.repeat(piece, 8), return_inverse=True)
+    node_index = np.stack(np.unravel_index(uniq // n_p, ndims), axis=1).astype(np.int64)
     return node_index, inverse.reshape(-1, 8).astype(np.int64)
 
 
-def _components(cells: np.ndarray, dims: np.ndarray, connectivity: str) -> np.ndarray:
-    """Component label per cube, 0 = largest, by ``scipy.ndimage.label`` on the occupancy grid."""
-    grid = np.zeros(tuple(int(d) for d in dims), dtype=bool)
-    grid[tuple(cells.T)] = True
-    structure = ndimage.generate_binary_structure(3, CONNECTIVITY[connectivity])
-    labels, n = ndimage.label(grid, structure=structure)
-    lab = labels[tuple(cells.T)] - 1
+def _piece_labels(cells: np.ndarray, dims: np.ndarray, connectivity: str, piece: np.ndarray) -> tuple[np.ndarray, int]:
+    """Connected components of cubes of the same body that are neighbours (graph on the sorted
+    (cell, body) keys; labels in order of each component's first cube, as ``ndimage.label``)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n_p = int(piece.max()) + 1
+    dims = np.asarray(dims, dtype=np.int64)
+    key = np.ravel_multi_index(cells.T, dims) * n_p + piece            # sorted (from_cells sorts)
+    offs = np.argwhere(ndimage.generate_binary_structure(3, CONNECTIVITY[connectivity])) - 1
+    offs = offs[[tuple(o) > (0, 0, 0) for o in offs]]                  # each neighbour pair once
+    rows, cols = [], []
+    for o in offs:                                                     # 3, 9 or 13 offsets
+        nb = cells + o
+        ok = np.all((nb >= 0) & (nb < dims), axis=1)
+        k = np.ravel_multi_index(nb[ok].T, dims) * n_p + piece[ok]
+        at = np.minimum(np.searchsorted(key, k), len(key) - 1)
+        hit = key[at] == k
+        rows.append(np.flatnonzero(ok)[hit])
+        cols.append(at[hit])
+    r, c = np.concatenate(rows), np.concatenate(cols)
+    n_c, lab = connected_components(coo_matrix((np.ones(len(r)), (r, c)), shape=(len(cells),) * 2), directed=False)
+    first = np.full(n_c, len(cells))
+    np.minimum.at(first, lab, np.arange(len(cells)))
+    rank = np.empty(n_c, np.int64)
+    rank[np.argsort(first)] = np.arange(n_c)
+    return rank[lab], n_c
+
+
+def _components(cells: np.ndarray, dims: np.ndarray, connectivity: str, piece: np.ndarray) -> np.ndarray:
+    """Component label per cube, 0 = largest, by ``scipy.ndimage.label`` on the occupancy grid
+    (one body) or by neighbours of the same body (:func:`_piece_labels`)."""
+    if len(piece) and piece.max() > 0:
+        lab, n = _piece_labels(cells, dims, connectivity, piece)
+    else:
+        grid = np.zeros(tuple(int(d) for d in dims), dtype=bool)
+        grid[tuple(cells.T)] = True
+        structure = ndimage.generate_binary_structure(3, CONNECTIVITY[connectivity])
+        labels, n = ndimage.label(grid, structure=structure)
+        lab = labels[tuple(cells.T)] - 1
     sizes = np.bincount(lab, minlength=n)
     rank = np.empty(n, dtype=np.int64)
     rank[np.argsort(-sizes, kind="stable")] = np.arange(n)

@@ -6,6 +6,11 @@ to the nodes as ``W.T @ f``. Each row of W holds the 8 trilinear weights of the 
 reproduced exactly. A point whose own voxel is not in the model (a dropped small component, a
 gap, a stray polygon) is attached to the nearest kept cube with its local coordinates clamped
 to that cube; such points are counted as *detached*.
+
+In a model whose cells hold cubes of several bodies (:attr:`CubeModel.piece`), each point
+follows its own body: the body given, or that of the nearest source-surface site
+(:meth:`CubeModel.piece_at`); a detached point is attached to the nearest cube of its body (of any
+body when its body has no cube, e.g. a loose polygon that was not kept).
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from .._validate import as_points
+from ..errors import InputError
 from .cubes import HEX_CORNERS, CubeModel
 
 
@@ -50,18 +56,42 @@ class Embedding:
         return int(self.detached.sum())
 
 
-def embedding(model: CubeModel, points) -> Embedding:
-    """Locate ``points`` (n, 3), model units, in ``model``; see :class:`Embedding`."""
+def _nearest_cube(model: CubeModel, pts: np.ndarray, among: np.ndarray) -> np.ndarray:
+    """Index of the cube (of the cubes ``among``) nearest to each point (clamped distance)."""
+    k = min(8, len(among))
+    _, cand = cKDTree(model.cell_centers[among]).query(pts, k=k)
+    cand = among[np.asarray(cand).reshape(len(pts), k)]
+    lo = model.origin + model.pitch * model.cells[cand]            # (q, k, 3)
+    clamped = np.clip(pts[:, None, :], lo, lo + model.pitch)
+    d = np.linalg.norm(clamped - pts[:, None, :], axis=2)
+    return cand[np.arange(len(pts)), np.argmin(d, axis=1)]
+
+
+def embedding(model: CubeModel, points, piece=None) -> Embedding:
+    """Locate ``points`` (n, 3), model units, in ``model``; see :class:`Embedding`.
+
+    ``piece`` (n,) int: the body of each point, when known (default :meth:`CubeModel.piece_at`);
+    it matters only where cells hold cubes of several bodies.
+    """
     pts = as_points(points, "points")
     dims = model.dims
-    lin_cells = np.ravel_multi_index(model.cells.T, dims)          # sorted (CubeModel sorts cells)
+    n_p = int(model.piece.max()) + 1
+    several = n_p > 1
+    if several:
+        pp = model.piece_at(pts) if piece is None else np.asarray(piece, dtype=np.int64).reshape(-1)
+        if pp.shape != (len(pts),):
+            raise InputError(f"piece must have shape ({len(pts)},), got {pp.shape}")
+        pp = np.where((pp >= 0) & (pp < n_p), pp, -1)
+    else:
+        pp = np.zeros(len(pts), np.int64)
+    key_cells = np.ravel_multi_index(model.cells.T, dims) * n_p + model.piece   # sorted (CubeModel sorts)
     ijk = np.floor((pts - model.origin) / model.pitch).astype(np.int64)
     inside_grid = np.all((ijk >= 0) & (ijk < dims), axis=1)
     ijk_c = np.clip(ijk, 0, dims - 1)
-    lin = np.ravel_multi_index(ijk_c.T, dims)
-    pos = np.searchsorted(lin_cells, lin)
-    pos_c = np.minimum(pos, len(lin_cells) - 1)
-    found = (lin_cells[pos_c] == lin)
+    key = np.ravel_multi_index(ijk_c.T, dims) * n_p + pp
+    pos = np.searchsorted(key_cells, key)
+    pos_c = np.minimum(pos, len(key_cells) - 1)
+    found = (key_cells[pos_c] == key) & (pp >= 0)
     cube = np.where(found, pos_c, -1)
     # points on the upper grid boundary belong to the last cell (ijk == dims after floor)
     upper = ~inside_grid & np.all((ijk >= 0) & (ijk <= dims), axis=1) & found
@@ -69,14 +99,19 @@ def embedding(model: CubeModel, points) -> Embedding:
     cube[~direct] = -1
     miss = np.flatnonzero(cube < 0)
     if len(miss):
-        k = min(8, model.n_cubes)
-        centers = model.cell_centers
-        _, cand = cKDTree(centers).query(pts[miss], k=k)
-        cand = np.asarray(cand).reshape(len(miss), k)
-        lo = model.origin + model.pitch * model.cells[cand]        # (q, k, 3)
-        clamped = np.clip(pts[miss][:, None, :], lo, lo + model.pitch)
-        d = np.linalg.norm(clamped - pts[miss][:, None, :], axis=2)
-        cube[miss] = cand[np.arange(len(miss)), np.argmin(d, axis=1)]
+        everything = np.arange(model.n_cubes)
+        if not several:
+            cube[miss] = _nearest_cube(model, pts[miss], everything)
+        else:
+            has = np.bincount(model.piece, minlength=n_p) > 0
+            own = np.where(pp[miss] >= 0, pp[miss], 0)
+            own_ok = (pp[miss] >= 0) & has[own]
+            lost = miss[~own_ok]
+            if len(lost):
+                cube[lost] = _nearest_cube(model, pts[lost], everything)
+            for b in np.unique(own[own_ok]):                  # per body, not per point
+                sel = miss[own_ok][own[own_ok] == b]
+                cube[sel] = _nearest_cube(model, pts[sel], np.flatnonzero(model.piece == b))
     lo = model.origin + model.pitch * model.cells[cube]
     local_raw = (pts - lo) / model.pitch
     local = np.clip(local_raw, 0.0, 1.0)
@@ -89,7 +124,7 @@ def embedding(model: CubeModel, points) -> Embedding:
     return Embedding(W=W, cube=cube, local=local, detached=detached, distance=distance)
 
 
-def embed(model: CubeModel, points) -> sp.csr_matrix:
+def embed(model: CubeModel, points, piece=None) -> sp.csr_matrix:
     """Trilinear interpolation matrix W, shape (len(points), model.n_nodes).
 
     Parameters
@@ -97,6 +132,8 @@ def embed(model: CubeModel, points) -> sp.csr_matrix:
     model : CubeModel
     points : array_like, shape (n, 3)
         Positions in model units (e.g. the source mesh's vertices).
+    piece : array_like of int, shape (n,), optional
+        Body of each point (see :func:`embedding`).
 
     Returns
     -------
@@ -104,4 +141,4 @@ def embed(model: CubeModel, points) -> sp.csr_matrix:
         ``W @ u_nodes`` interpolates node displacements (m, 3) to the points; rows sum to 1.
         Use :func:`embedding` for the cube, local coordinates and the detached-point count.
     """
-    return embedding(model, points).W
+    return embedding(model, points, piece).W

@@ -14,7 +14,8 @@ from .cubes import CONNECTIVITY
 
 FILLS = ("auto", "solid", "surface")
 OCCUPANCIES = ("sample", "exact")
-KEEPS = ("largest", "all")
+KEEPS = ("bodies", "largest", "all")
+TOPOLOGIES = ("pieces", "grid")
 STIFFNESS = ("moments", "fraction", "full")
 DEFAULT_SUBSAMPLES = 4     # n: n^3 inside-test samples per boundary cube
 
@@ -52,9 +53,22 @@ class VoxelOptions:
     occupancy : {"sample", "exact"}
         Which cubes the surface occupies: ``"sample"``, the paper's point sampling; ``"exact"``,
         conservative triangle-box overlap, so no touched voxel is ever lost.
-    keep : {"largest", "all"}
-        Keep only the largest connected component (dropping more than half the cubes warns), or
-        everything.
+    keep : {"bodies", "largest", "all"}
+        Which connected components of the lattice stay. ``"bodies"`` (default): the largest
+        component of every body (see ``topology``), except *loose* bodies lighter than 1 % of
+        the heaviest (stray polygons), whose vertices then follow the nearest kept cube;
+        ``"largest"``: only the largest component (dropping more than half the cubes warns);
+        ``"all"``: everything.
+    topology : {"pieces", "grid"}
+        What is connected to what. ``"pieces"`` (default): parts of the mesh (faces connected
+        through shared vertex positions) closer than ``weld``, crossing or inside one another
+        form one body (:mod:`sc_fem.geometry.bodies`); cubes of different bodies never share a
+        node, also where they occupy the same cell (virtual nodes), so the number of bodies does
+        not change with the resolution. ``"grid"``: everything in one cell moves together (the
+        original Squashing Cubes; two parts a third of a cube apart move as one).
+    weld : float, optional
+        Weld distance of ``topology="pieces"``, model units (>= 0). Default: 0.5 % of the longest
+        bounding-box extent, independent of the resolution.
     connectivity : {"face", "edge", "vertex"}, optional
         Which cubes count as connected. Default ``"face"`` (cubes that touch only along an edge
         or a corner share 1--2 nodes and would act as free hinges), ``"vertex"`` for point clouds.
@@ -88,7 +102,9 @@ class VoxelOptions:
     mass: float | None = None
     fill: str = "auto"
     occupancy: str = "sample"
-    keep: str = "largest"
+    keep: str = "bodies"
+    topology: str = "pieces"
+    weld: float | None = None
     connectivity: str | None = None
     n_samples: int | None = None
     spacing: float | None = None
@@ -99,7 +115,8 @@ class VoxelOptions:
     max_memory: float | None = None
 
     def __post_init__(self) -> None:
-        for name, allowed in (("fill", FILLS), ("occupancy", OCCUPANCIES), ("keep", KEEPS), ("stiffness", STIFFNESS)):
+        for name, allowed in (("fill", FILLS), ("occupancy", OCCUPANCIES), ("keep", KEEPS), ("stiffness", STIFFNESS),
+                              ("topology", TOPOLOGIES)):
             if getattr(self, name) not in allowed:
                 raise InputError(f"{name} must be one of {', '.join(repr(a) for a in allowed)}, "
                                  f"got {getattr(self, name)!r}")
@@ -116,6 +133,8 @@ class VoxelOptions:
         for name in ("pitch", "mass", "spacing", "shell_thickness", "max_memory"):
             if getattr(self, name) is not None:
                 norm[name] = positive_scalar(getattr(self, name), name)
+        if self.weld is not None:
+            norm["weld"] = positive_scalar(self.weld, "weld", allow_zero=True)
         for name, value in norm.items():
             object.__setattr__(self, name, value)
 

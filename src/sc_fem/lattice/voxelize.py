@@ -116,8 +116,8 @@ def _memory_guard(vertices, faces, bounds, dims, n_samples, budget, resolution) 
 
 
 def hash_samples(points: np.ndarray, masses: np.ndarray, values: dict[str, np.ndarray], origin: np.ndarray,
-                 pitch: float, dims: np.ndarray,
-                 sums: dict[str, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+                 pitch: float, dims: np.ndarray, sums: dict[str, np.ndarray] | None = None,
+                 piece: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
     """Hash samples to voxels; sum their masses and mass-average their values per voxel.
 
     Parameters
@@ -132,6 +132,9 @@ def hash_samples(points: np.ndarray, masses: np.ndarray, values: dict[str, np.nd
         The grid (see :func:`grid_for`).
     sums : dict of name -> ndarray (n,), optional
         Per-sample quantities to sum (not average) per voxel; returned in ``averages`` too.
+    piece : ndarray of int, shape (n,), optional
+        Body of each sample: samples of different bodies in one voxel make separate cubes
+        (returned as ``averages["piece"]``, int).
 
     Returns
     -------
@@ -143,13 +146,18 @@ def hash_samples(points: np.ndarray, masses: np.ndarray, values: dict[str, np.nd
         Mass-weighted average of each value per voxel.
     """
     lin = np.ravel_multi_index(voxel_index(points, origin, pitch, dims).T, dims)
+    n_p = 1 if piece is None or not len(piece) else int(piece.max()) + 1
+    if n_p > 1:
+        lin = lin * n_p + piece
     uniq, inv = np.unique(lin, return_inverse=True)
     cube_mass = np.bincount(inv, weights=masses, minlength=len(uniq))
     if np.any(cube_mass <= 0):
         raise MaterialError("a cube received zero mass; check density/mass values")
     averages = {k: np.bincount(inv, weights=masses * v, minlength=len(uniq)) / cube_mass for k, v in values.items()}
     averages.update({k: np.bincount(inv, weights=v, minlength=len(uniq)) for k, v in (sums or {}).items()})
-    cells = np.stack(np.unravel_index(uniq, dims), axis=1).astype(np.int64)
+    cells = np.stack(np.unravel_index(uniq // n_p, dims), axis=1).astype(np.int64)
+    if piece is not None:
+        averages["piece"] = (uniq % n_p).astype(np.int64)
     return cells, cube_mass, averages
 
 
@@ -181,13 +189,13 @@ def _point_cloud_pitch(points: np.ndarray, bounds: np.ndarray) -> float:
     return max(float((bounds[1] - bounds[0]).max()) / DEFAULT_RESOLUTION, 1.5 * gap)
 
 
-def _occupied_cells(surf: Samples, vertices, faces, grid, occupancy: str) -> tuple[np.ndarray, dict]:
+def _occupied_cells(surf: Samples, vertices, faces, grid, occupancy: str, own_vertices=None) -> tuple[np.ndarray, dict]:
     """Cubes touched by the surface samples, the mesh vertices and (``"exact"``) the triangles:
     a boolean grid of shape ``dims``, and the counts recorded in ``info``."""
     origin, pitch, dims = grid
     occupied = np.zeros(tuple(int(d) for d in dims), dtype=bool)
     occupied[tuple(voxel_index(surf.points, origin, pitch, dims).T)] = True
-    vertex_cells = voxel_index(vertices, origin, pitch, dims)
+    vertex_cells = voxel_index(vertices if own_vertices is None else vertices[own_vertices], origin, pitch, dims)
     n_vertex_only = int((~occupied[tuple(vertex_cells.T)]).sum())
     occupied[tuple(vertex_cells.T)] = True      # every vertex's cube is in the model
     n_exact_only = 0
@@ -276,20 +284,106 @@ def _full_within_roundoff(moments: np.ndarray, origin, pitch: float, dims) -> np
     return np.abs(moments - FULL).max(axis=1) <= 1e3 * np.finfo(float).eps * extent
 
 
+LOOSE_FRACTION = 0.01
+"""``keep="bodies"``: bodies lighter than this fraction of the heaviest are loose (not kept)."""
+
+
+def _find_bodies(vertices, faces, opts: VoxelOptions, longest: float, cloud: bool):
+    """The bodies of ``topology="pieces"`` (None for ``"grid"`` and point clouds) and the body of
+    every face, shape (m,)."""
+    if cloud or opts.topology == "grid":
+        return None, np.zeros(len(faces), np.int64)
+    from ..geometry.bodies import DEFAULT_WELD_FRACTION, find_bodies
+    from ..geometry.inside import mesh_parts
+
+    parts = mesh_parts(vertices, faces)
+    weld = DEFAULT_WELD_FRACTION * longest if opts.weld is None else opts.weld
+    bodies = find_bodies(vertices, parts, weld)
+    return bodies, bodies.of_part[parts.label]
+
+
+def _batches(vertices, faces, face_body, n_bodies: int, grid) -> list[np.ndarray]:
+    """Bodies in batches whose cell boxes do not overlap, so one voxelization pass per batch can
+    tell every cube's body by where it lies (greedy, over bodies)."""
+    origin, pitch, dims = grid
+    lo = np.full((n_bodies, 3), np.inf)
+    hi = np.full((n_bodies, 3), -np.inf)
+    fb = np.repeat(face_body, 3)
+    np.minimum.at(lo, fb, vertices[faces.ravel()])
+    np.maximum.at(hi, fb, vertices[faces.ravel()])
+    a, b = voxel_index(lo, origin, pitch, dims), voxel_index(hi, origin, pitch, dims)
+    batch = np.full(n_bodies, -1)
+    for i in np.argsort(-np.prod(b - a + 1, axis=1), kind="stable"):     # bodies, largest box first
+        clash = np.all((a[i] <= b) & (a <= b[i]), axis=1) & (batch >= 0)
+        taken = np.unique(batch[clash])
+        free = np.setdiff1d(np.arange(len(taken) + 1), taken)
+        batch[i] = free[0]
+    return [np.flatnonzero(batch == k) for k in range(batch.max() + 1)], (a, b)
+
+
+def _body_samples(surf: Samples, vertices, faces, grid, opts: VoxelOptions, thick: float, face_body, bodies):
+    """The mass samples (faces: global indices) and the body of each; one voxelization pass per
+    batch of bodies whose cells cannot meet (:func:`_batches`)."""
+    origin, pitch, dims = grid
+    if bodies is None or bodies.n_bodies == 1 or not len(faces):
+        occupied, counts = _occupied_cells(surf, vertices, faces, grid, opts.occupancy)
+        samples, parts_info, shells, counts["floor_cubes"] = _mass_samples(occupied, surf, vertices, faces, grid,
+                                                                          opts, thick)
+        return samples, np.zeros(len(samples), np.int64), parts_info, shells, counts
+    batches, (a, b) = _batches(vertices, faces, face_body, bodies.n_bodies, grid)
+    out, body, counts, parts_info, shells = [], [], {}, {}, False
+    vb = np.full(len(vertices), -1)
+    vb[faces.ravel()] = np.repeat(face_body, 3)
+    for k, members in enumerate(batches):          # a few batches of bodies
+        fsel = np.flatnonzero(np.isin(face_body, members))
+        local = np.full(len(faces), -1)
+        local[fsel] = np.arange(len(fsel))
+        ssel = np.isin(face_body[surf.face], members)
+        surf_k = Samples(surf.points[ssel], surf.weight[ssel], local[surf.face[ssel]])
+        own = np.isin(vb, members) | ((vb < 0) & (k == 0))      # unreferenced vertices: the first batch
+        occupied, c = _occupied_cells(surf_k, vertices, faces[fsel], grid, opts.occupancy, own_vertices=own)
+        smp, pinfo, sh, c["floor_cubes"] = _mass_samples(occupied, surf_k, vertices, faces[fsel], grid, opts, thick)
+        owner = np.full(tuple(int(d) for d in dims), -1, dtype=np.int64)
+        for m in members:                                        # bodies of this batch: their cell boxes
+            owner[tuple(slice(int(lo_), int(hi_) + 1) for lo_, hi_ in zip(a[m], b[m]))] = m
+        sb = owner[tuple(voxel_index(smp.points, origin, pitch, dims).T)]
+        if np.any(sb < 0):                                       # cannot happen: cells lie in their body's box
+            raise RuntimeError("a mass sample fell outside its body's cells")
+        out.append(Samples(smp.points, smp.weight, np.where(smp.face >= 0, fsel[np.maximum(smp.face, 0)], -1),
+                           smp.moments))
+        body.append(sb)
+        shells |= sh
+        for key, v in {**c, **pinfo}.items():
+            counts[key] = counts.get(key, 0) + v
+    parts_info = {key: counts.pop(key) for key in ("parts", "solid_parts", "shell_parts") if key in counts}
+    samples = Samples(np.vstack([q.points for q in out]), np.concatenate([q.weight for q in out]),
+                      np.concatenate([q.face for q in out]), np.vstack([q.moments for q in out]))
+    return samples, np.concatenate(body), parts_info, shells, counts
+
+
 def _keep(model: CubeModel, keep: str, info: dict) -> CubeModel:
-    """Apply ``keep`` (the largest connected component, or all) and record what was dropped."""
+    """Apply ``keep`` (see :class:`VoxelOptions`) and record what was dropped."""
     n_comp = model.n_components
     info.update(components_found=n_comp, cubes_found=model.n_cubes)
-    if keep == "largest" and n_comp > 1:
-        kept = model.subset(model.component == 0)
-        dropped = model.n_cubes - kept.n_cubes
-        if dropped > kept.n_cubes:
-            warnings.warn(
-                f"keep='largest' kept {kept.n_cubes} of {model.n_cubes} cubes ({n_comp} components): "
-                f"most of the model was dropped; use a coarser resolution, connectivity='vertex' or "
-                f"keep='all'", ScFemWarning, stacklevel=4)
-        return kept.with_info(**info, dropped_cubes=dropped)
-    return model.with_info(**info, dropped_cubes=0)
+    if keep == "all" or n_comp == 1:
+        return model.with_info(**info, dropped_cubes=0, loose_bodies=0)
+    # components are numbered largest first: the largest of each body ("bodies") or of all
+    first = np.full(int(model.piece.max()) + 1, n_comp)
+    np.minimum.at(first, model.piece, model.component)
+    mask = model.component == (first[model.piece] if keep == "bodies" else 0)
+    loose = np.zeros(len(first), bool)
+    if keep == "bodies":          # ... of the bodies that are not loose
+        body_mass = np.bincount(model.piece, weights=model.mass)
+        loose = (body_mass < LOOSE_FRACTION * body_mass.max()) & (body_mass > 0)
+        mask &= ~loose[model.piece]
+    kept = model.subset(mask)
+    dropped = model.n_cubes - kept.n_cubes
+    if dropped > kept.n_cubes:
+        warnings.warn(
+            f"keep={keep!r} kept {kept.n_cubes} of {model.n_cubes} cubes ({n_comp} components): "
+            f"most of the model was dropped; use a coarser resolution, connectivity='vertex' or "
+            f"keep='all'", ScFemWarning, stacklevel=4)
+    return kept.with_info(**info, dropped_cubes=dropped, loose_bodies=int(loose.sum()))
 
 
 def voxelize(mesh: Any, options: VoxelOptions | None = None, **fields: Any) -> CubeModel:
@@ -366,15 +460,16 @@ def voxelize(mesh: Any, options: VoxelOptions | None = None, **fields: Any) -> C
     else:
         surf = surface_grid_samples(vertices, faces, spacing)
 
-    occupied, counts = _occupied_cells(surf, vertices, faces, grid, opts.occupancy)
-    samples, parts_info, shells, counts["floor_cubes"] = _mass_samples(occupied, surf, vertices, faces, grid,
-                                                                      opts, thick)
+    bodies, face_body = _find_bodies(vertices, faces, opts, longest, cloud)
+    samples, sample_body, parts_info, shells, counts = _body_samples(surf, vertices, faces, grid, opts, thick,
+                                                                    face_body, bodies)
     E, nu, rho, m = _sample_material(samples, surf, len(faces), youngs, poisson, density, opts)
 
-    # ---- hash samples to voxels and accumulate (vectorized: unique + bincount)
+    # ---- hash samples to voxels and accumulate (vectorized: unique + bincount); one cube per body and voxel
     cells, cube_mass, avg = hash_samples(samples.points, m, {"E": E, "nu": nu, "rho": rho}, origin, pitch, dims,
                                          sums={"volume": samples.weight,
-                                               **{f"m{k}": samples.moments[:, k] for k in range(27)}})
+                                               **{f"m{k}": samples.moments[:, k] for k in range(27)}},
+                                         piece=sample_body)
     volume = avg["volume"]                             # filled volume per cube, model units^3
     moments = np.stack([avg[f"m{k}"] for k in range(27)], axis=1)
     fraction = np.clip(volume / pitch**3, 0.0, 1.0)
@@ -389,10 +484,23 @@ def voxelize(mesh: Any, options: VoxelOptions | None = None, **fields: Any) -> C
             "filled_volume": float(volume.sum() * opts.scale**3),
             "material": mat_name, "source": mesh.metadata.get("source", ""),
             "sha256": mesh.metadata.get("sha256", ""), "resolution": int(dims.max()), **parts_info}
+    sites = site_piece = None
+    if bodies is not None:
+        info.update(topology=opts.topology, weld=bodies.weld, bodies=bodies.n_bodies,
+                    welds_by_distance=bodies.joined_by_distance, welds_by_containment=bodies.joined_by_containment)
+        if bodies.n_bodies > 1:      # where a point lies: the body of the nearest vertex or face centre
+            used = np.unique(faces)
+            vb = np.zeros(len(vertices), np.int64)
+            vb[faces.ravel()] = np.repeat(face_body, 3)
+            sites = np.vstack([vertices[used], vertices[faces].mean(axis=1)])
+            site_piece = np.r_[vb[used], face_body]
+    else:
+        info.update(topology="grid" if not cloud else "points", bodies=1)
     model = CubeModel.from_cells(cells, origin=origin, pitch=pitch, scale=opts.scale, dims=dims, mass=cube_mass,
                                  youngs=avg["E"], poisson=avg["nu"], density=cube_rho, fraction=fraction,
                                  stiffness=opts.stiffness, moments=moments,
-                                 connectivity=connectivity, info=info)
+                                 connectivity=connectivity, info=info, piece=avg["piece"],
+                                 sites=sites, site_piece=site_piece)
     size_m = longest * opts.scale
     if not PLAUSIBLE_SIZE[0] <= size_m <= PLAUSIBLE_SIZE[1]:
         warnings.warn(f"the model is {size_m:.4g} m long (scale={opts.scale:g} metres per model unit): is that "
