@@ -7,6 +7,8 @@ import sys
 import time
 from contextlib import contextmanager
 
+import numpy as np
+
 
 def add_mesh_arg(p: argparse.ArgumentParser, *, many: bool = False) -> None:
     """The positional MESH (``many``: one or more, glob patterns allowed)."""
@@ -44,8 +46,17 @@ def add_grid_args(p: argparse.ArgumentParser, *, auto: bool = False, old_method_
                    help="which cubes the surface occupies: point sampling (default) or exact triangle-cube overlap")
     old = ("--voxel-method", "--method") if old_method_flag else ("--voxel-method",)
     p.add_argument(*old, dest="occupancy", choices=("sample", "exact"), default="sample", help=argparse.SUPPRESS)
-    p.add_argument("--keep", choices=("largest", "all"), default="largest",
-                   help="keep the largest connected component (default) or all")
+    p.add_argument("--keep", choices=("bodies", "largest", "all"), default="bodies",
+                   help="bodies (default): the largest connected part of every body, except loose ones "
+                        "(< 1%% of the heaviest body's mass, e.g. stray polygons); largest: only the largest "
+                        "connected part; all: everything")
+    p.add_argument("--topology", choices=("pieces", "grid"), default="pieces",
+                   help="pieces (default): parts of the mesh closer than --weld, crossing or nested are one "
+                        "body, and bodies never share cube nodes even inside one cube; grid: everything in a "
+                        "cube moves together (the original Squashing Cubes)")
+    p.add_argument("--weld", type=float, default=None,
+                   help="weld distance in model units: parts closer than this are joined (default 0.5%% of "
+                        "the longest extent, the same at every resolution)")
 
 
 def add_material_args(p: argparse.ArgumentParser) -> None:
@@ -63,7 +74,8 @@ def voxel_options(args):
 
     res = parse_resolution(getattr(args, "resolution", None))      # a bad value is an error here
     return VoxelOptions(resolution=None if isinstance(res, AutoResolution) else res, pitch=args.pitch, scale=args.scale, fill=args.fill, occupancy=args.occupancy,
-                        keep=args.keep, shell_thickness=args.shell_thickness, stiffness=args.stiffness,
+                        keep=args.keep, topology=args.topology, weld=args.weld,
+                        shell_thickness=args.shell_thickness, stiffness=args.stiffness,
                         youngs=args.youngs, poisson=args.poisson, density=args.density, mass=args.mass)
 
 
@@ -84,6 +96,17 @@ def scene_from_args(args, mesh=None):
                            fix=list(getattr(args, "fix", []) or []) or None, fix_vertices=fix_vertices)
 
 
+def _bodies_line(model) -> str:
+    info = model.info
+    if info.get("topology") != "pieces":
+        return f"{model.n_components} (topology {info.get('topology', 'grid')}: cubes glue what they share)"
+    shared = int(np.sum(np.diff(np.ravel_multi_index(model.cells.T, model.dims)) == 0))
+    return (f"{model.n_components} kept of {info.get('bodies', 1)} (weld {info.get('weld', 0):.4g} model units: "
+            f"{info.get('welds_by_distance', 0)} part pairs welded by distance, "
+            f"{info.get('welds_by_containment', 0)} by nesting; {info.get('loose_bodies', 0)} loose; "
+            f"{shared} cells hold cubes of two bodies)")
+
+
 def model_summary(model) -> str:
     info = model.info
     rows = [
@@ -91,6 +114,7 @@ def model_summary(model) -> str:
         ("grid", " x ".join(str(int(d)) for d in model.dims) + f"  (pitch {model.pitch:.4g} model units, h {model.h:.4g} m)"),
         ("cubes / nodes / DOFs", f"{model.n_cubes:,} / {model.n_nodes:,} / {model.n_dofs:,}"),
         ("samples", f"{info.get('n_samples', 0):,} ({info.get('sampler', '')}, {info.get('occupancy', '')}, fill {info.get('fill', '')})"),
+        ("bodies", _bodies_line(model)),
         ("components", f"{info.get('components_found', model.n_components)} found, "
                        f"{info.get('dropped_cubes', 0)} cubes dropped"),
         ("size", " x ".join(f"{e:.4g}" for e in model.dims * model.h) + " m (bounding box of the cubes)"),

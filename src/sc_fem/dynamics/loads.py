@@ -204,8 +204,8 @@ def impulse_nodes(model: CubeModel, points, vertices, impulses, *, radius: float
     """Node impulses (m, 3), N s, for impulses on source vertices, spread over the mass around each
     (or node forces, N, for point forces: the same sharing, :class:`VertexForce` ``spread="mass"``).
 
-    An impulse ``J`` on vertex ``p`` is shared by the lattice nodes within ``radius`` cube edges
-    of ``p`` (at least the 8 nodes of its cube) in proportion to their lumped masses ``m_i``:
+    An impulse ``J`` on vertex ``p`` is shared by the lattice nodes of its body within ``radius``
+    cube edges of ``p`` (at least the 8 nodes of its cube) in proportion to their lumped masses ``m_i``:
     node ``i`` gets ``m_i J / m_patch``. With a lumped mass every node of the patch then starts
     with the same velocity ``J / m_patch`` (momentum ``J``, kinetic energy ``|J|^2 / (2 m_patch)``
     -- a rigid patch hit by ``J``); with the consistent mass ``M^-1`` of it is close to that.
@@ -241,6 +241,14 @@ def impulse_nodes(model: CubeModel, points, vertices, impulses, *, radius: float
     own = embed(model, pts[idx]).tocsr()                              # the nodes of each vertex's cube
     rows = np.concatenate([np.full(len(a), k) for k, a in enumerate(near)] + [own.nonzero()[0]]).astype(np.int64)
     cols = np.concatenate([np.asarray(a, dtype=np.int64) for a in near] + [own.nonzero()[1]])
+    if model.shares_cells:       # bodies in one cell: only the nodes of the hit vertex's own body
+        node_piece = np.zeros(model.n_nodes, np.int64)
+        node_piece[model.hexes.ravel()] = np.repeat(model.piece, 8)
+        hit_piece = np.zeros(len(idx), np.int64)
+        own_r, own_c = own.nonzero()
+        hit_piece[own_r] = node_piece[own_c]
+        same = node_piece[cols] == hit_piece[rows]
+        rows, cols = rows[same], cols[same]
     P = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(idx), model.n_nodes))
     P.data[:] = 1.0                                                   # duplicates summed: back to 0/1
     Pm = P.multiply(m[None, :]).tocsr()                               # m_i on each patch
