@@ -265,3 +265,44 @@ def test_mode_files_and_gltf_on_split_cubes(tmp_path):
     sv = np.linalg.svd(bottom, compute_uv=False)
     assert sv[1] <= 1e-6 * sv[0]
     assert export_gltf(back, tmp_path / "p.glb").stat().st_size > 0
+
+
+def test_component_labels_of_bodies_match_ndimage_on_one_body():
+    """Loop-free graph labelling of (cell, body) neighbours against scipy.ndimage on one body, and
+    against a breadth-first loop oracle with two bodies sharing cells."""
+    from scipy import ndimage
+
+    from sc_fem.lattice.cubes import CONNECTIVITY, _piece_labels
+
+    rng = np.random.default_rng(5)
+    dims = np.array([7, 6, 5])
+    cells = np.argwhere(rng.random(tuple(dims)) < 0.35)
+    for conn in ("face", "edge", "vertex"):
+        lab, n = _piece_labels(cells, dims, conn, np.zeros(len(cells), np.int64))
+        grid = np.zeros(tuple(dims), bool)
+        grid[tuple(cells.T)] = True
+        ref, n_ref = ndimage.label(grid, ndimage.generate_binary_structure(3, CONNECTIVITY[conn]))
+        assert n == n_ref and np.array_equal(lab, ref[tuple(cells.T)] - 1)
+    # two bodies: every cell twice; a loop oracle (BFS over cubes) gives the same partition
+    both = np.vstack([cells, cells])
+    piece = np.r_[np.zeros(len(cells), np.int64), np.ones(len(cells), np.int64)]
+    order = np.lexsort((piece, *np.ravel_multi_index(both.T, dims)[None]))
+    both, piece = both[order], piece[order]
+    lab, n = _piece_labels(both, dims, "face", piece)
+    seen = -np.ones(len(both), np.int64)
+    pos = {(tuple(c), p): i for i, (c, p) in enumerate(zip(both.tolist(), piece.tolist()))}
+    k = 0
+    for i in range(len(both)):                      # the oracle loops over cubes
+        if seen[i] >= 0:
+            continue
+        stack, seen[i] = [i], k
+        while stack:
+            j = stack.pop()
+            for d in np.vstack([np.eye(3, dtype=int), -np.eye(3, dtype=int)]):
+                nb = pos.get((tuple(both[j] + d), int(piece[j])))
+                if nb is not None and seen[nb] < 0:
+                    seen[nb] = k
+                    stack.append(nb)
+        k += 1
+    assert n == k
+    assert len(np.unique(np.stack([lab, seen], 1), axis=0)) == n           # the same partition

@@ -302,9 +302,10 @@ def _find_bodies(vertices, faces, opts: VoxelOptions, longest: float, cloud: boo
     return bodies, bodies.of_part[parts.label]
 
 
-def _batches(vertices, faces, face_body, n_bodies: int, grid) -> list[np.ndarray]:
+def _batches(vertices, faces, face_body, n_bodies: int, grid) -> tuple[list[np.ndarray], tuple[np.ndarray, np.ndarray]]:
     """Bodies in batches whose cell boxes do not overlap, so one voxelization pass per batch can
-    tell every cube's body by where it lies (greedy, over bodies)."""
+    tell every cube's body by where it lies (greedy, over bodies). Returns the batches (arrays of
+    body indices) and every body's lowest and highest cell, each (n_bodies, 3)."""
     origin, pitch, dims = grid
     lo = np.full((n_bodies, 3), np.inf)
     hi = np.full((n_bodies, 3), -np.inf)
@@ -405,8 +406,10 @@ def voxelize(mesh: Any, options: VoxelOptions | None = None, **fields: Any) -> C
     Returns
     -------
     CubeModel
-        ``fraction`` holds each cube's filled volume fraction; ``info`` records occupancy, fill,
-        parts that became solids and shells, samples, components before ``keep``, dropped cubes.
+        ``fraction`` holds each cube's filled volume fraction; ``piece`` each cube's body;
+        ``info`` records occupancy, fill, parts that became solids and shells, samples, the
+        bodies (``topology``, ``weld``, ``bodies``, ``welds_by_distance``,
+        ``welds_by_containment``, ``loose_bodies``), components before ``keep``, dropped cubes.
 
     Notes
     -----
