@@ -36,12 +36,16 @@ def test_subpackages_export_what_they_list():
         assert missing == [], package
 
 
-def test_old_module_names_still_work():
-    """Names users already import from keep working after the move into subpackages."""
-    assert sc_fem.models.material("builtin:chair").density > 0
-    assert sc_fem.integrators.make_integrator is sc_fem.dynamics.make_integrator
-    assert sc_fem.xpbd.XPBDSolver is sc_fem.XPBDSolver
-    assert callable(sc_fem.render.render_animation)
+def test_no_deprecated_aliases():
+    """Nothing has been released, so no old name is kept: the module aliases and ModeFileError are
+    gone, and importing or using the package raises no DeprecationWarning of its own."""
+    for old in ("models", "integrators", "xpbd", "render", "ModeFileError"):
+        assert not hasattr(sc_fem, old)
+    assert sc_fem.geometry.models.material("builtin:chair").density > 0
+    from pathlib import Path
+
+    package = Path(sc_fem.__file__).parent
+    assert [p.name for p in package.rglob("*.py") if "DeprecationWarning" in p.read_text()] == []
 
 
 def test_errors_share_one_base():

@@ -102,7 +102,7 @@ def test_gif_output(tmp_path):
         pytest.skip(f"no off-screen rendering here: {exc}")
     out = tmp_path / "beam.gif"
     rc = main(["simulate", *BEAM, "--gravity", "--duration", "0.01", "--dt", "0.001", "--fps", "500",
-               "--magnify", "100", "--quiet", "-o", str(out)])
+               "--exaggerate", "100", "--quiet", "-o", str(out)])
     assert rc == 0 and out.stat().st_size > 1000
 
 

@@ -82,9 +82,12 @@ def test_demo_writes_every_output(tmp_path, capsys):
     assert rec.meta["segments"] == 2 and rec.E_A_pde.mean() < 0.006986 and rec.E_M_pde.max() < 0.019478
 
 
-def test_old_occupancy_flags_still_work(tmp_path):
-    """``--occupancy`` was ``--method`` / ``--voxel-method``: old command lines keep working."""
-    for flag in ("--occupancy", "--method", "--voxel-method"):
-        out = tmp_path / f"m{flag}.npz"
-        assert main(["voxelize", "builtin:beam", "-r", "8", flag, "exact", "-o", str(out)]) == 0
-        assert load_model(out).info["occupancy"] == "exact"
+def test_occupancy_flag_and_no_old_spellings(tmp_path, capsys):
+    """``--occupancy`` works; the pre-release ``--method`` / ``--voxel-method`` are gone (usage error)."""
+    out = tmp_path / "m.npz"
+    assert main(["voxelize", "builtin:beam", "-r", "8", "--occupancy", "exact", "-o", str(out)]) == 0
+    assert load_model(out).info["occupancy"] == "exact"
+    for flag in ("--method", "--voxel-method"):
+        with pytest.raises(SystemExit) as exc:
+            main(["voxelize", "builtin:beam", "-r", "8", flag, "exact", "-o", str(out)])
+        assert exc.value.code == 2 and flag in capsys.readouterr().err

@@ -55,7 +55,7 @@ def test_scene_is_flattened_with_transforms():
 
 
 def test_builtin_names_and_unknown():
-    for name in sc_fem.models.names():
+    for name in sc_fem.geometry.models.names():
         assert len(sc_fem.load_mesh(f"builtin:{name}").faces) > 0
     with pytest.raises(ScFemError, match="unknown built-in model 'nope'"):
         sc_fem.load_mesh("builtin:nope")

@@ -269,53 +269,36 @@ def test_auto_method_picks_the_solver_predicted_faster_here():
     assert cross and cross[0] == (20_000 if _jit.available() else 30_000)
 
 
-def test_old_names_warn_and_contradictions_are_errors():
-    """``modal(method=)`` and ``ModalBasis.fixed`` (renamed eigen= / fix_record) still work
-    with a DeprecationWarning; an old and a new name that disagree are an error, not a silent pick."""
+def test_old_keywords_are_gone_with_a_clear_error():
+    """The pre-release spellings (``modal(method=, eigensolver=, backend=, damping_ratio=, ...)``,
+    ``ModalBasis.fixed``, ``voxelize(method=)``) were removed, not kept as deprecated aliases:
+    each is one clear error naming the bad keyword."""
     m = CubeModel.box((6, 2, 2), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
-    with pytest.warns(DeprecationWarning, match="EigenOptions"):
-        old = modal(m, n_modes=2, fix="x<min+0", method="lobpcg")
-    assert old.eigen["method"] == "lobpcg"
-    with pytest.warns(DeprecationWarning, match="fix_record"):
-        assert old.fixed == old.fix_record and old.fix_record["n_nodes"] == 9
-    with pytest.raises(InputError, match="contradicts"), pytest.warns(DeprecationWarning):
-        modal(m, n_modes=2, fix="x<min+0", method="lobpcg", eigensolver="shift-invert")
-    with pytest.raises(InputError, match="contradicts"), pytest.warns(DeprecationWarning):
-        voxelize("builtin:beam", resolution=8, method="sample", occupancy="exact")
+    for old in ("method", "eigensolver", "backend", "damping_ratio", "voxelize_options", "tolerance"):
+        with pytest.raises(TypeError, match=old):
+            modal(m, n_modes=2, fix="x<min+0", **{old: None})
+    basis = modal(m, n_modes=2, fix="x<min+0", eigen="lobpcg")
+    assert basis.eigen["method"] == "lobpcg" and not hasattr(basis, "fixed")
+    with pytest.raises(InputError, match="unknown voxelize option.*'method'"):
+        voxelize("builtin:beam", resolution=8, method="exact")
 
 
-def test_grouped_options_match_the_old_flat_keywords():
-    """Each keyword folded into an option object (eigen=, damping=, resolution=AutoResolution,
-    voxel=) gives exactly the old keyword's result, and the old one warns."""
+def test_grouped_options():
+    """The option objects (eigen=, damping=, resolution=AutoResolution, voxel=) reach the solver."""
     m = CubeModel.box((6, 2, 2), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
-    pairs = [(dict(eigen=EigenOptions(solver="lobpcg")), dict(eigensolver="lobpcg")),
-             (dict(eigen=EigenOptions(backend="splu", max_memory=1e9)), dict(backend="splu", max_memory=1e9)),
-             (dict(damping=Damping(rayleigh=(0.5, 1e-4))), dict(rayleigh=(0.5, 1e-4))),
-             (dict(damping=0.03), dict(damping_ratio=0.03))]
-    for new, old in pairs:
-        a = modal(m, n_modes=3, fix="x<min+0", **new)
-        with pytest.warns(DeprecationWarning, match="deprecated"):
-            b = modal(m, n_modes=3, fix="x<min+0", **old)
-        np.testing.assert_allclose(a.frequencies, b.frequencies, rtol=1e-9)
-        np.testing.assert_array_equal(a.damping, b.damping)
-        assert a.eigen["method"] == b.eigen["method"] and a.eigen["backend"] == b.eigen["backend"]
+    a = modal(m, n_modes=3, fix="x<min+0", eigen=EigenOptions(backend="splu", max_memory=1e9))
+    assert a.eigen["backend"] == "splu"
     assert modal(m, n_modes=2, fix="x<min+0", eigen="lobpcg").eigen["method"] == "lobpcg"
+    damped = modal(m, n_modes=3, fix="x<min+0", damping=Damping(rayleigh=(0.5, 1e-4)))
+    omega = 2 * np.pi * damped.frequencies
+    np.testing.assert_allclose(damped.damping, 0.5 * (0.5 / omega + 1e-4 * omega), rtol=1e-12)
     # the 6 -> 8 change is 0.4 %: the default tolerance (5 %) would pick 6, this one cannot converge
     new = modal("builtin:beam", resolution=AutoResolution((6, 8), tolerance=1e-9), n_modes=2,
                 fix="x<min+1e-6", voxel=VoxelOptions(fill="solid", youngs=2e9))
-    with pytest.warns(DeprecationWarning):
-        old = modal("builtin:beam", resolution="auto", resolutions=(6, 8), tolerance=1e-9, n_modes=2,
-                    fix="x<min+1e-6", voxelize_options={"fill": "solid", "youngs": 2e9})
-    assert new.resolution == old.resolution == 8 and not new.resolution_table[0]["converged"]
-    assert [r["frequencies"] for r in new.resolution_table] == [r["frequencies"] for r in old.resolution_table]
+    assert new.resolution == 8 and not new.resolution_table[0]["converged"]
     np.testing.assert_allclose(new.material["youngs"], [2e9, 2e9], rtol=1e-12)
-    np.testing.assert_allclose(new.frequencies, old.frequencies, rtol=1e-12)
-    with pytest.raises(InputError, match="not both"), pytest.warns(DeprecationWarning):
-        modal(m, n_modes=2, damping=0.1, damping_ratio=0.2)
     with pytest.raises(TypeError, match="n_mode"):
         modal(m, n_mode=2)
-    with pytest.raises(InputError, match="applies to resolution='auto' only"), pytest.warns(DeprecationWarning):
-        modal("builtin:beam", resolution=8, tolerance=0.01)          # was silently ignored
     with pytest.raises(InputError, match="contradicts"):
         modal("builtin:beam", resolution=8, voxel=VoxelOptions(resolution=12))
     with pytest.raises(InputError, match="eigensolver must be one of"):

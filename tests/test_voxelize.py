@@ -234,7 +234,7 @@ def test_zero_mass_material_is_rejected():
         sc_fem.voxelize("builtin:beam", resolution=4, density=lambda p: np.zeros(len(p)))
 
 
-def test_method_is_the_deprecated_name_of_occupancy():
-    with pytest.warns(DeprecationWarning, match="occupancy"):
-        old = sc_fem.voxelize("builtin:beam", resolution=8, method="exact")
-    assert old.info["occupancy"] == "exact"
+def test_method_is_not_an_option_any_more():
+    with pytest.raises(sc_fem.errors.InputError, match="unknown voxelize option"):
+        sc_fem.voxelize("builtin:beam", resolution=8, method="exact")
+    assert sc_fem.voxelize("builtin:beam", resolution=8, occupancy="exact").info["occupancy"] == "exact"

@@ -21,7 +21,7 @@ _LAZY: dict[str, str] = {
     "ScFemError": ".errors", "InputError": ".errors", "MeshError": ".errors",
     "MeshFileError": ".errors", "MaterialError": ".errors", "ResolutionError": ".errors",
     "BoundaryConditionError": ".errors", "SolverError": ".errors", "InstabilityError": ".errors",
-    "FileFormatError": ".errors", "ModeFileError": ".errors", "RenderError": ".errors",
+    "FileFormatError": ".errors", "RenderError": ".errors",
     # geometry -> lattice
     "load_mesh": ".geometry.mesh", "CubeModel": ".lattice.cubes", "Embedding": ".lattice.embed",
     "VoxelOptions": ".lattice.options", "Scene": ".scene",
@@ -50,13 +50,10 @@ _LAZY: dict[str, str] = {
     "simulate_xpbd": ".dynamics.xpbd", "rope_scene": ".dynamics.rope_scene", "RopeScene": ".dynamics.rope_scene",
 }
 
-# subpackages by pipeline stage, and the old module names users already import (``sc_fem.models``,
-# ``sc_fem.integrators``, ``sc_fem.xpbd``, ``sc_fem.render``) as aliases of their new homes
+# subpackages by pipeline stage
 _SUBMODULES: dict[str, str] = {
     "geometry": ".geometry", "lattice": ".lattice", "fem": ".fem", "modes": ".modes",
     "dynamics": ".dynamics", "reconstruct": ".reconstruct", "io": ".io",
-    "models": ".geometry.models", "integrators": ".dynamics", "xpbd": ".dynamics.xpbd",
-    "render": ".io.render",
 }
 
 # Functions that share their module's name are imported eagerly: otherwise ``import

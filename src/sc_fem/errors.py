@@ -49,7 +49,6 @@ class FileFormatError(ScFemError, OSError):
     corrupted, foreign or of another version."""
 
 
-ModeFileError = FileFormatError
 """The old name of :class:`FileFormatError` (it was raised for every sc_fem file, not only mode files)."""
 
 

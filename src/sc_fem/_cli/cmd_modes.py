@@ -43,7 +43,7 @@ def register(sub) -> None:
     p.add_argument("--lumped", action="store_true", help="lumped instead of consistent mass")
     p.add_argument("--keep-rigid", action="store_true", help="keep rigid-body modes (flagged) instead of removing them")
     p.add_argument("--keep-lattice", action="store_true", help="also store the lattice and the node modes")
-    p.add_argument("--eigensolver", "--solver", dest="eigensolver", choices=("auto", "shift-invert", "lobpcg"),
+    p.add_argument("--eigensolver", dest="eigensolver", choices=("auto", "shift-invert", "lobpcg"),
                    default="auto", help="default auto: the one predicted faster on this machine (shift-invert with "
                                         "a Cholesky factor below ~18k DOFs (~24k without numba), else LOBPCG + AMG) whose memory fits")
     p.add_argument("--backend", choices=("auto", "cholmod", "cholespy", "splu"), default="auto",

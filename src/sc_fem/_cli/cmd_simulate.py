@@ -29,7 +29,7 @@ def register(sub) -> None:
                     "rendered .mp4/.gif. "
                     "A run that blows up stops with the time step and dt_crit and writes nothing.")
     add_mesh_arg(p)
-    add_grid_args(p, old_method_flag=False)
+    add_grid_args(p)
     add_material_args(p)
     add_fix_args(p)
     p.add_argument("--duration", type=float, required=True, help="simulated time, s")
@@ -75,9 +75,8 @@ def register(sub) -> None:
     p.add_argument("--gust", type=float, nargs=4, default=None, metavar=("FX", "FY", "FZ", "SECONDS"),
                    help="total force in N over all vertices, half-sine pulse lasting SECONDS")
     p.add_argument("--fps", type=float, default=50.0, help="frames per second stored (default 50)")
-    p.add_argument("--exaggerate", "--magnify", dest="magnify", type=float, default=1.0,
-                   help="multiply displacements in a rendered video only (default 1; the same option as "
-                        "play's; --magnify is its old name)")
+    p.add_argument("--exaggerate", dest="magnify", type=float, default=1.0,
+                   help="multiply displacements in a rendered video only (default 1; the same option as play's)")
     p.add_argument("-o", "--output", required=True, help="output: .npz, .xdmf, .mp4 or .gif")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--quiet", "-q", action="store_true", help="print only errors")

@@ -22,9 +22,9 @@ def add_mesh_arg(p: argparse.ArgumentParser, *, many: bool = False) -> None:
                             "(chair, bridge, rope, beam)")
 
 
-def add_grid_args(p: argparse.ArgumentParser, *, auto: bool = False, old_method_flag: bool = True) -> None:
-    """Grid options. ``--occupancy`` was ``--voxel-method`` (still accepted) and, on commands where
-    ``--method`` means nothing else, ``--method`` (``old_method_flag``)."""
+def add_grid_args(p: argparse.ArgumentParser, *, auto: bool = False) -> None:
+    """Grid, fill, stiffness, occupancy, bodies and ``--keep`` options (``auto``: ``--resolution``
+    also takes ``auto``)."""
     g = p.add_mutually_exclusive_group()
     g.add_argument("--resolution", "-r", default=None,
                    type=(str if auto else int),
@@ -44,8 +44,6 @@ def add_grid_args(p: argparse.ArgumentParser, *, auto: bool = False, old_method_
                         "full: every cube at full stiffness (the original Squashing Cubes)")
     p.add_argument("--occupancy", dest="occupancy", choices=("sample", "exact"), default="sample",
                    help="which cubes the surface occupies: point sampling (default) or exact triangle-cube overlap")
-    old = ("--voxel-method", "--method") if old_method_flag else ("--voxel-method",)
-    p.add_argument(*old, dest="occupancy", choices=("sample", "exact"), default="sample", help=argparse.SUPPRESS)
     p.add_argument("--keep", choices=("bodies", "largest", "all"), default="bodies",
                    help="bodies (default): the largest connected part of every body, except loose ones "
                         "(< 1%% of the heaviest body's mass, e.g. stray polygons); largest: only the largest "

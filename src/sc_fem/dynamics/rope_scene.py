@@ -91,10 +91,10 @@ def rope_scene(n_frames: int = 201, fps: float = 60.0, resolution: int = 40, sub
     substeps, iterations : int
         XPBD substeps per frame and iterations per substep.
     youngs : float, optional
-        Young's modulus, Pa (default: the built-in rope's material ``sc_fem.models.material("rope")``,
+        Young's modulus, Pa (default: the built-in rope's material ``sc_fem.geometry.models.material("rope")``,
         1 MPa; its Poisson's ratio and density are always used).
     mesh : trimesh.Trimesh, optional
-        Rope mesh along x (default ``sc_fem.models.load("rope")``).
+        Rope mesh along x (default ``sc_fem.geometry.models.load("rope")``).
     constraints, damping, kernel : see :class:`~sc_fem.dynamics.xpbd.XPBDSolver`.
     """
     from ..lattice.embed import embed

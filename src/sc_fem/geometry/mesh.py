@@ -33,7 +33,7 @@ def load_mesh(source: Any, *, name: str | None = None):
     ----------
     source : str, path, trimesh.Trimesh, trimesh.Scene, trimesh.PointCloud, or tuple
         A file path (OBJ, STL, PLY, OFF, GLB/glTF, VTK/VTU and anything else trimesh or meshio
-        reads), ``"builtin:NAME"`` (see :mod:`sc_fem.models`), a trimesh object (scenes are
+        reads), ``"builtin:NAME"`` (see :mod:`sc_fem.geometry.models`), a trimesh object (scenes are
         flattened with their transforms), ``(vertices (n, 3), faces (m, 3 or 4))`` arrays, or a
         bare ``(n, 3)`` vertex array (a point cloud). Quads and polygons are triangulated.
     name : str, optional

@@ -400,8 +400,7 @@ def voxelize(mesh: Any, options: VoxelOptions | None = None, **fields: Any) -> C
         which documents each one); default ``VoxelOptions()``.
     **fields
         Any field of :class:`~sc_fem.lattice.options.VoxelOptions` (``resolution``, ``scale``,
-        ``youngs``, ``fill``, ...), overriding ``options``. ``method`` is the deprecated name of
-        ``occupancy`` (warns).
+        ``youngs``, ``fill``, ...), overriding ``options``.
 
     Returns
     -------
@@ -417,13 +416,6 @@ def voxelize(mesh: Any, options: VoxelOptions | None = None, **fields: Any) -> C
     holds a mesh vertex is occupied, so the trilinear embedding of every vertex lies in its own
     cube. Cubes the surface only grazes get the small mass of ``1 / (2 subsamples^3)`` of a cube.
     """
-    if "method" in fields:                                   # the old name of occupancy
-        method = fields.pop("method")
-        warnings.warn("voxelize(method=...) is now occupancy=...", DeprecationWarning, stacklevel=2)
-        given = fields.get("occupancy", VoxelOptions.coerce(options).occupancy)
-        if given not in ("sample", method):
-            raise InputError(f"method={method!r} (the old name of occupancy) contradicts occupancy={given!r}")
-        fields["occupancy"] = method
     opts = VoxelOptions.coerce(options, **fields)
     mesh = load_mesh(mesh)
     vertices = np.asarray(mesh.vertices, dtype=float)

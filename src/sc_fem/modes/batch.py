@@ -192,7 +192,7 @@ def precompute_one(mesh: str, output: str, options: dict) -> dict:
         Mode file to write.
     options : dict
         Keyword arguments of :func:`sc_fem.modes.modal.modal`; a ``"default"`` entry of ``fix`` is
-        replaced by the built-in model's supports (:func:`sc_fem.models.expand_fix`).
+        replaced by the built-in model's supports (:func:`sc_fem.geometry.models.expand_fix`).
     """
     t0 = time.perf_counter()
     row: dict[str, Any] = {k: "" for k in SUMMARY_FIELDS}

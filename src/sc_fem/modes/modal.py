@@ -146,14 +146,6 @@ class ModalBasis:
     fixed_points: np.ndarray | None = None
 
     @property
-    def fixed(self) -> dict:
-        """Deprecated name of :attr:`fix_record` (warns)."""
-        import warnings
-
-        warnings.warn("ModalBasis.fixed is now fix_record", DeprecationWarning, stacklevel=2)
-        return self.fix_record
-
-    @property
     def n_modes(self) -> int:
         """Number of modes ``k``."""
         return len(self.frequencies)
@@ -321,60 +313,11 @@ def finish(s: _Solved, req: ModalRequest, timings: dict, resolution_table: list 
         node_modes=node_modes if keep else None, fixed_points=model.nodes[scene.fixed_nodes])
 
 
-_LEGACY = {"tolerance": "resolution=AutoResolution(tolerance=...)",
-           "resolutions": "resolution=AutoResolution(resolutions=...)",
-           "voxelize_options": "voxel=VoxelOptions(...)", "damping_ratio": "damping=<ratio>",
-           "rayleigh": "damping=Damping(rayleigh=(alpha, beta))", "eigensolver": "eigen=EigenOptions(solver=...)",
-           "method": "eigen=EigenOptions(solver=...)", "backend": "eigen=EigenOptions(backend=...)",
-           "max_memory": "eigen=EigenOptions(max_memory=...)"}
-"""Keywords :func:`modal` took before its options were grouped -> what replaces them."""
-
-
-def _from_legacy(legacy: dict, resolution, voxel, damping, eigen):
-    """Fold the pre-grouping keywords of :func:`modal` into the option objects (warns once)."""
-    import warnings
-
-    unknown = sorted(set(legacy) - set(_LEGACY))
-    if unknown:
-        raise TypeError(f"modal() got unexpected keyword argument(s) {', '.join(map(repr, unknown))}")
-    if not legacy:
-        return resolution, voxel, damping, eigen
-    warnings.warn("modal(" + ", ".join(legacy) + "=...) is deprecated: use "
-                  + "; ".join(_LEGACY[k] for k in legacy), DeprecationWarning, stacklevel=3)
-
-    def one(new_name, new_value, old_names):
-        if new_value is not None:
-            raise InputError(f"give {new_name}= or its old spelling {'/'.join(old_names)}=, not both")
-
-    auto_keys = [k for k in ("tolerance", "resolutions") if legacy.get(k) is not None]
-    if auto_keys:
-        if not isinstance(parse_resolution(resolution), AutoResolution):
-            raise InputError(f"{'/'.join(auto_keys)}= applies to resolution='auto' only")
-        base = AutoResolution()
-        resolution = AutoResolution(resolutions=legacy.get("resolutions") or base.resolutions,
-                                    tolerance=legacy.get("tolerance") or base.tolerance)
-    if legacy.get("voxelize_options"):
-        one("voxel", voxel, ["voxelize_options"])
-        voxel = VoxelOptions.coerce(legacy["voxelize_options"])
-    if legacy.get("damping_ratio") is not None or legacy.get("rayleigh") is not None:
-        one("damping", damping, ["damping_ratio", "rayleigh"])
-        damping = Damping(ratio=legacy.get("damping_ratio"), rayleigh=legacy.get("rayleigh"))
-    solver = {legacy.get(k) for k in ("eigensolver", "method")} - {None, "auto"}
-    if len(solver) > 1:
-        raise InputError(f"method= (the old name of eigensolver) contradicts eigensolver=: {sorted(solver)}")
-    eig = {k: v for k, v in (("solver", solver.pop() if solver else None), ("backend", legacy.get("backend")),
-                             ("max_memory", legacy.get("max_memory"))) if v is not None}
-    if eig:
-        one("eigen", eigen, ["eigensolver", "method", "backend", "max_memory"])
-        eigen = EigenOptions(**eig)
-    return resolution, voxel, damping, eigen
-
-
 def modal(model: Any, *, n_modes: int | None = None, max_frequency: float | None = None, max_modes: int = 200,
           mesh: Any = None, resolution: int | str | AutoResolution | None = None,
           voxel: VoxelOptions | dict | None = None, fix=None, fix_vertices=None, element: str = DEFAULT_ELEMENT,
           lumped: bool = False, damping: Damping | float | None = None, eigen: EigenOptions | str | None = None,
-          keep_rigid: bool = False, keep_lattice: bool = False, progress: bool = False, **legacy: Any) -> ModalBasis:
+          keep_rigid: bool = False, keep_lattice: bool = False, progress: bool = False) -> ModalBasis:
     """Vibration modes of a model, baked onto its source mesh.
 
     Parameters
@@ -424,10 +367,6 @@ def modal(model: Any, *, n_modes: int | None = None, max_frequency: float | None
         Keep the lattice and the node modes in the result.
     progress : bool
         Print stage messages to stderr.
-    **legacy
-        The keywords of earlier versions (``tolerance``, ``resolutions``, ``voxelize_options``,
-        ``damping_ratio``, ``rayleigh``, ``eigensolver``, ``method``, ``backend``,
-        ``max_memory``) still work and warn (DeprecationWarning).
 
     Returns
     -------
@@ -442,7 +381,6 @@ def modal(model: Any, *, n_modes: int | None = None, max_frequency: float | None
     """
     from ..scene import Scene
 
-    resolution, voxel, damping, eigen = _from_legacy(legacy, resolution, voxel, damping, eigen)
     req = ModalRequest(n_modes=n_modes, max_frequency=max_frequency, max_modes=max_modes, element=element,
                        lumped=lumped, damping=damping, eigen=eigen, keep_rigid=keep_rigid,
                        keep_lattice=keep_lattice, progress=progress)
