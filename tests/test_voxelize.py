@@ -238,3 +238,21 @@ def test_method_is_not_an_option_any_more():
     with pytest.raises(sc_fem.errors.InputError, match="unknown voxelize option"):
         sc_fem.voxelize("builtin:beam", resolution=8, method="exact")
     assert sc_fem.voxelize("builtin:beam", resolution=8, occupancy="exact").info["occupancy"] == "exact"
+
+def test_a_face_on_a_grid_plane_occupies_the_cube_of_its_material_only():
+    """A box with a post whose joint face lies exactly on a grid plane: the face's samples and
+    vertices belong to the solid's cube, not the empty one beyond (which used to become a layer of
+    1/128-mass "floor cubes": +0.18 % mass and 60 extra cubes at resolution 8)."""
+    import shapes
+
+    m = shapes._union(np.array([[0, 0, 0], [0.4, 0.4, 0.5]]), np.array([[1, 1, 0.5], [0.6, 0.6, 1.0]]))
+    for r in (8, 16):
+        model = sc_fem.voxelize(m, resolution=r, fill="solid", density=1000.0)
+        k = r // 8
+        assert model.info["floor_cubes"] == 0
+        assert model.n_cubes == (8 * 8 * 4 + 2 * 2 * 4) * k**3            # the base's cells and the post's
+        assert model.total_mass == pytest.approx(1000.0 * m.volume, rel=1e-9)
+        from sc_fem.lattice.embed import embedding
+
+        emb = embedding(model, m.vertices)
+        assert emb.n_detached == 0 and np.abs(emb.W @ model.nodes - m.vertices).max() < 1e-12
