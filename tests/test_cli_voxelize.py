@@ -91,3 +91,22 @@ def test_occupancy_flag_and_no_old_spellings(tmp_path, capsys):
         with pytest.raises(SystemExit) as exc:
             main(["voxelize", "builtin:beam", "-r", "8", flag, "exact", "-o", str(out)])
         assert exc.value.code == 2 and flag in capsys.readouterr().err
+
+
+def test_up_help_names_only_options_the_command_has():
+    """``--up`` is one option with one default everywhere, and its help does not send users to
+    ``--gravity`` / ``--ground`` on commands that lack them."""
+    import argparse
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    checked = 0
+    for name, cmd in sub.choices.items():
+        opts = {o: a for a in cmd._actions for o in a.option_strings}
+        if "--up" not in opts:
+            continue
+        checked += 1
+        assert opts["--up"].default == "z" and tuple(opts["--up"].choices) == ("x", "y", "z")
+        for other in ("--gravity", "--ground"):
+            assert (other in opts["--up"].help) <= (other in opts), (name, other)
+    assert checked >= 5

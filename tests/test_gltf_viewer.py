@@ -47,8 +47,9 @@ def test_modes_become_morph_targets_that_two_readers_agree_on(chair_modes, tmp_p
     glb = tmp_path / "c.glb"
     doc = pygltflib.GLTF2().load(str(glb))
     prim = doc.meshes[0].primitives[0]
-    assert len(prim.targets) == basis.n_modes
+    assert len(prim.targets) == 2 * basis.n_modes              # +mode k, -mode k
     extras = doc.meshes[0].extras["sc_fem"]
+    R = np.asarray(extras["axes"]["model_to_gltf"])             # model z-up -> glTF +Y up, metres
     np.testing.assert_allclose(extras["frequencies_hz"], basis.frequencies)
     np.testing.assert_allclose(extras["damping_ratios"], basis.damping)
     s = np.asarray(extras["mode_scales"])
@@ -61,19 +62,22 @@ def test_modes_become_morph_targets_that_two_readers_agree_on(chair_modes, tmp_p
         n = {"SCALAR": 1, "VEC3": 3}[acc.type]
         return np.frombuffer(blob, np.float32, acc.count * n, view.byteOffset).reshape(acc.count, n)
 
-    for k, tgt in enumerate(prim.targets):                  # displacement = baked mode x recorded scale
-        want = np.asarray(basis.modes[k], dtype=np.float64) * s[k] / basis.scale
+    for j, tgt in enumerate(prim.targets):                  # displacement = +-baked mode x recorded scale
+        k, sign = divmod(j, 2)
+        want = (1 - 2 * sign) * np.asarray(basis.modes[k], dtype=np.float64) * s[k] @ R.T      # metres
         np.testing.assert_allclose(read(tgt["POSITION"]), want, rtol=2e-6, atol=2e-7 * np.abs(want).max())
-    np.testing.assert_allclose(read(prim.attributes.POSITION), basis.vertices, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(read(prim.attributes.POSITION), basis.vertices @ R.T * basis.scale, rtol=1e-6,
+                               atol=1e-6)
     # the promise behind the scale: at weight 1 every mode's largest vertex displacement is 5 % of
     # the bounding-box diagonal
-    diag = np.linalg.norm(np.ptp(basis.vertices, axis=0))
+    diag = np.linalg.norm(np.ptp(basis.vertices, axis=0)) * basis.scale
     peaks = [np.linalg.norm(read(t["POSITION"]), axis=1).max() for t in prim.targets]
     np.testing.assert_allclose(peaks, 0.05 * diag, rtol=1e-5)
     # an independent reader: trimesh sees the same surface
     mesh = trimesh.load(glb, force="mesh")
     assert len(mesh.faces) == len(basis.faces)
-    np.testing.assert_allclose(np.sort(mesh.vertices, axis=0), np.sort(basis.vertices, axis=0), atol=1e-5)
+    np.testing.assert_allclose(np.sort(mesh.vertices, axis=0), np.sort(basis.vertices @ R.T * basis.scale, axis=0),
+                               atol=1e-5)
     issues = _validate(glb)
     assert issues["numErrors"] == 0 and issues["numWarnings"] == 0, issues["messages"][:5]
 
@@ -94,13 +98,15 @@ def test_baked_playback_is_the_exact_modal_response(chair_modes, tmp_path):
     t = np.frombuffer(blob, np.float32, doc.accessors[sam.input].count, doc.bufferViews[doc.accessors[sam.input].bufferView].byteOffset)
     w_acc = doc.accessors[sam.output]
     w = np.frombuffer(blob, np.float32, w_acc.count, doc.bufferViews[w_acc.bufferView].byteOffset).reshape(len(t), -1)
+    w = w[:, 0::2] - w[:, 1::2]                             # signed mode weights (two targets per mode)
     player = sc_fem.ModalPlayer(basis)
     player.impulse(top, [1.0, 0.0, 0.0])
     q = player.coordinates(t.astype(float))
     s = np.asarray(doc.meshes[0].extras["sc_fem"]["mode_scales"])
     np.testing.assert_allclose(w * s, q, rtol=1e-5, atol=1e-6 * np.abs(q).max())
     assert len(t) == 21 and abs(t[-1] - 0.5) < 1e-6
-    assert _validate(out)["numErrors"] == 0
+    issues = _validate(out)
+    assert issues["numErrors"] == 0 and issues["numWarnings"] == 0, issues["messages"][:5]
 
 
 def test_baked_mode_release_starts_at_weight_one(chair_modes, tmp_path):
@@ -121,6 +127,7 @@ def test_baked_mode_release_starts_at_weight_one(chair_modes, tmp_path):
     t_acc, w_acc = doc.accessors[sam.input], doc.accessors[sam.output]
     t = np.frombuffer(blob, np.float32, t_acc.count, doc.bufferViews[t_acc.bufferView].byteOffset).astype(float)
     w = np.frombuffer(blob, np.float32, w_acc.count, doc.bufferViews[w_acc.bufferView].byteOffset).reshape(len(t), -1)
+    w = w[:, 0::2] - w[:, 1::2]                             # signed mode weights (two targets per mode)
     assert w[0, 1] == pytest.approx(1.0, rel=1e-6)
     assert np.abs(np.delete(w, 1, axis=1)).max() < 1e-6
     om, z = 2 * np.pi * basis.frequencies[1], basis.damping[1]
@@ -142,7 +149,8 @@ def test_animation_export_and_its_limit(tmp_path):
     a = sc_fem.load_animation(anim)
     assert len(doc["meshes"][0]["primitives"][0]["targets"]) == a.n_frames
     assert doc["animations"][0]["samplers"][0]["interpolation"] == "LINEAR"
-    assert _validate(out)["numErrors"] == 0
+    issues = _validate(out)
+    assert issues["numErrors"] == 0 and issues["numWarnings"] == 0, issues["messages"][:5]
     long = sc_fem.io.animation.Animation(faces=a.faces, rest_vertices=a.rest_vertices,
                                          times=np.arange(MAX_ANIMATION_TARGETS + 1) * 1e-3,
                                          positions=np.repeat(a.positions[:1], MAX_ANIMATION_TARGETS + 1, axis=0),

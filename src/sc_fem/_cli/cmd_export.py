@@ -8,11 +8,15 @@ from .common import add_up_arg
 
 def register(sub) -> None:
     p = sub.add_parser("export", help="write modes or an animation as glTF 2.0 (.glb/.gltf): modes as morph targets",
-                       description="Write a mode file as glTF 2.0: the source mesh with one morph target per mode "
-                                   "(weight 1 = --amplitude of the model's size; the scales, frequencies and damping "
-                                   "in meshes[0].extras.sc_fem), optionally a baked playback (--impulse or --mode) as "
-                                   "a weights animation. An animation file (sc-fem simulate .npz) is written as one "
-                                   "morph target per frame with a weights channel.")
+                       description="Write a mode file as glTF 2.0, +Y up (the model's --up axis turned onto it) and in "
+                                   "metres, with a dielectric double-sided material and vertex normals: the source "
+                                   "mesh with two morph targets per mode, +mode and -mode, so every weight is in "
+                                   "[0, 1] (weight 1 = --amplitude of the model's size; normal deltas on every target; "
+                                   "the scales, frequencies, damping and which target is which in "
+                                   "meshes[0].extras.sc_fem), optionally a baked playback (--impulse or --mode) as a "
+                                   "weights animation. An animation file (sc-fem simulate .npz) is written as one "
+                                   "morph target per frame with a weights channel. A mode file stores no UVs: give "
+                                   "the source mesh with --mesh to keep its UVs.")
     p.add_argument("source", metavar="FILE", help="mode file or animation file (.npz)")
     p.add_argument("-o", "--output", required=True, help="output .glb (or .gltf)")
     p.add_argument("--amplitude", type=float, default=0.05,
@@ -22,7 +26,12 @@ def register(sub) -> None:
                    help="bake the exact response to an impulse (N s) on a source vertex")
     g.add_argument("--mode", type=int, default=None, help="bake this mode released from weight 1")
     p.add_argument("--duration", type=float, default=2.0, help="seconds of baked playback (2)")
-    p.add_argument("--fps", type=float, default=30.0, help="samples per second of the baked playback (30)")
+    p.add_argument("--fps", type=float, default=30.0,
+                   help="samples per second of the baked playback (30); moving modes above fps/2 alias (a warning)")
+    add_up_arg(p, uses="the exported glTF turns it onto +Y, the up axis of glTF, three.js and Blender")
+    p.add_argument("--mesh", metavar="MESH", default=None,
+                   help="the source mesh the file was computed from (same vertices): its UVs become TEXCOORD_0 "
+                        "and its file normals, if any, NORMAL")
     p.add_argument("--quiet", "-q", action="store_true", help="print only errors")
     p.set_defaults(func=run_export)
 
@@ -39,16 +48,23 @@ def register(sub) -> None:
 
 
 def run_export(args) -> int:
+    import sys
+
     from ..errors import InputError
-    from ..io.gltf import export_gltf
+    from ..io.gltf import _load, alias_warning, export_gltf, moving_modes
 
     impulse = None
     if args.impulse is not None:
         if not float(args.impulse[0]).is_integer():
             raise InputError(f"--impulse VERTEX must be an integer vertex index, got {args.impulse[0]:g}")
         impulse = (int(args.impulse[0]), args.impulse[1:])
-    path = export_gltf(args.source, args.output, amplitude=args.amplitude, impulse=impulse, mode=args.mode,
-                       duration=args.duration, fps=args.fps)
+    source = _load(args.source)
+    path = export_gltf(source, args.output, amplitude=args.amplitude, impulse=impulse, mode=args.mode,
+                       duration=args.duration, fps=args.fps, up=args.up, mesh=args.mesh)
+    if impulse is not None or args.mode is not None:        # the rule and words of sc-fem play
+        warning = alias_warning(source.frequencies, args.fps, moving_modes(source, impulse=impulse, mode=args.mode))
+        if warning:
+            print(f"sc-fem export: warning: {warning}", file=sys.stderr)
     if not args.quiet:
         print(f"wrote {path} ({path.stat().st_size / 1024:.0f} KiB)")
     return 0

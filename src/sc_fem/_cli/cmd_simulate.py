@@ -62,7 +62,7 @@ def register(sub) -> None:
     p.add_argument("--gravity", action="store_true", help="gravity 9.81 m/s^2 down the --up axis (default -z)")
     p.add_argument("--ground", type=float, default=None, metavar="Z",
                    help="ground plane at height Z along the --up axis (model units): source vertices stay above it")
-    add_up_arg(p)
+    add_up_arg(p, uses="pictures draw it upward, --gravity pulls down it and --ground is a height along it")
     p.add_argument("--sphere", type=float, nargs=4, default=None, metavar=("X", "Y", "Z", "R"),
                    help="static sphere obstacle (model units)")
     p.add_argument("--box", type=float, nargs=6, default=None, metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"),

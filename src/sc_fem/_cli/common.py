@@ -145,11 +145,11 @@ def add_fix_args(p: argparse.ArgumentParser) -> None:
                    help="text file of source-mesh vertex indices (one a line); their cubes' nodes are fixed")
 
 
-def add_up_arg(p: argparse.ArgumentParser) -> None:
-    """``--up x|y|z``: the model's up axis (pictures draw it upward; gravity and the ground use it)."""
+def add_up_arg(p: argparse.ArgumentParser, *, uses: str = "pictures draw it upward") -> None:
+    """``--up x|y|z``: the model's up axis, one option and default on every command; ``uses`` says
+    what this command does with it (help text)."""
     p.add_argument("--up", choices=("x", "y", "z"), default="z",
-                   help="the model's up axis (default z; many OBJ/glTF models are y-up): pictures draw it upward, "
-                        "--gravity pulls down it and --ground is a height along it")
+                   help=f"the model's up axis (default z; many OBJ/glTF models are y-up): {uses}")
 
 
 def add_element_arg(p: argparse.ArgumentParser) -> None:

@@ -1,21 +1,69 @@
 """glTF 2.0 export: the source mesh with its baked modes as morph targets (what game engines,
 Blender and the browser read), or a vertex animation as morph targets with a weights channel.
 
-A mode becomes a **morph target**: a per-vertex displacement. Mode ``k`` is stored as
-``d_k = s_k phi_k / scale`` (model units), with ``s_k`` (m kg^1/2, a modal coordinate) chosen so
-that the largest displacement of ``d_k`` is ``amplitude`` times the bounding-box diagonal: weight
-1 is a visible but small motion, and a weight ``w_k`` means the modal coordinate ``q_k = w_k s_k``.
-The ``s_k``, the frequencies (Hz) and damping ratios go to ``meshes[0].extras.sc_fem``; a baked
-playback (an impulse, or one mode released from a displacement, solved exactly as by
-:class:`~sc_fem.ModalPlayer`) is an animation of the weights, ``w_k(t) = q_k(t) / s_k``, sampled at
-``fps``.
+**Axes and units.** glTF is +Y up, metres, and so is every file :func:`export_gltf` writes. The
+model's up axis (``up=``, ``sc-fem export --up``, default ``"z"`` as for ``sc-fem view`` / ``play``)
+is turned onto +Y *in the data* (no node transform: the single node has none, so every importer
+sees the same coordinates): a glTF point is ``R @ (scale * p)`` for a model point ``p`` (model
+units), ``scale`` the mode file's metres per model unit, and ``R`` a proper rotation (handedness
+and winding are kept):
 
-A vertex animation (``sc-fem simulate`` output) stores one morph target per frame (its
-displacement from the rest mesh) and a LINEAR weights channel that blends frame ``i`` into ``i+1``,
-which is linear interpolation of the vertex positions between frames. Limit:
-:data:`MAX_ANIMATION_TARGETS` frames (engines upload every target; subsample longer clips).
+=====  ============================  ==================================================
+up     model (x, y, z) -> glTF       note
+=====  ============================  ==================================================
+z      (x, z, -y)                    Blender's convention: its importer gives the model's
+                                     own z-up coordinates back
+y      (x, y, z)                     unchanged
+x      (-y, x, z)                    a quarter turn about z
+=====  ============================  ==================================================
 
-Positions, normals and morph targets are float32; indices uint32.
+``R``, ``up`` and the scale are in ``meshes[0].extras.sc_fem.axes``. Mode shapes and normals are
+turned by the same ``R``. A vertex animation (``sc-fem simulate``) is scaled by the ``scale`` its
+metadata records (1 when it records none: then the units are the model's, and ``axes.units`` says
+so).
+
+**Surface.** One primitive with a default PBR material: dielectric (``metallicFactor`` 0,
+``roughnessFactor`` 0.6, neutral grey base colour) and ``doubleSided`` (meshes people bring have
+inconsistent winding). ``NORMAL`` are area-weighted vertex normals; a vertex that shares its
+position with others (a mesh split at UV seams) also takes their faces that lie within 60 degrees
+of its own normal, so a UV seam is smooth and a crease is kept. ``TEXCOORD_0`` comes from the source mesh: a mode file stores no UVs,
+so pass the mesh the modes were computed from (``mesh=``, ``sc-fem export --mesh``; its vertices
+must be the mode file's, as :func:`sc_fem.geometry.mesh.load_mesh` gives them); its UVs are
+written (``v`` flipped to glTF's top-left origin) and, when the file gave vertex normals, those
+are the rest ``NORMAL`` (the targets' normal deltas are always those of the computed normals).
+Without ``mesh=`` there is no ``TEXCOORD_0``; the source's own material and textures are not
+carried over (every file gets the default material).
+
+**Modes.** Mode ``k``'s displacement is ``d_k = s_k phi_k`` (metres, turned by ``R``), with
+``s_k`` (m kg^1/2, a modal coordinate) chosen so that its largest vertex displacement is
+``amplitude`` times the bounding-box diagonal: weight 1 is a visible but small motion. Morph
+weights are clamped to [0, 1] by some importers (Blender gives shape keys ``slider_min = 0``), so
+each mode is **two morph targets**: target ``2k`` is ``+d_k`` and target ``2k + 1`` is ``-d_k``;
+a signed mode weight ``w_k`` is written as the pair ``(max(w_k, 0), max(-w_k, 0))``, every weight
+lies in [0, 1], and ``w_k = weights[2k] - weights[2k + 1]`` exactly; the modal coordinate is
+``q_k = w_k s_k``. Every target also carries ``NORMAL``: the vertex normals of the displaced mesh
+(rest ``+ d_k``, resp. ``- d_k``, at weight 1) minus the rest normals, so shading follows the
+motion. ``meshes[0].extras.sc_fem`` holds ``targets`` (which mode and sign each target is), the
+frequencies (Hz), damping ratios and ``mode_scales`` (``s_k``); ``extras.targetNames`` names them.
+
+A baked playback (an impulse, or one mode released from weight 1, solved exactly as by
+:class:`~sc_fem.ModalPlayer`) is a LINEAR animation of the weights sampled at ``fps``. Where a
+mode's ``|w_k(t)|`` would exceed 1, its ``s_k`` is widened for that file so that its largest
+weight is exactly 1 (the recorded ``mode_scales`` are the ones used). Modes that move and lie
+above ``fps / 2`` alias; they are listed in ``extras.sc_fem.playback.aliased_modes``, and
+:func:`alias_warning` says so in the words of ``sc-fem play`` (``sc-fem export`` prints it).
+
+**Vertex animation** (``sc-fem simulate`` output): one morph target per frame (its displacement
+from the rest mesh, with its normal deltas) and a LINEAR weights channel that blends frame ``i``
+into ``i + 1`` -- weights in [0, 1], linear interpolation of the vertex positions between frames.
+Limit: :data:`MAX_ANIMATION_TARGETS` frames (engines upload every target; subsample longer clips).
+
+**The web viewer's layout** (``layout="viewer"``, the default of :func:`glb_bytes` only, which
+``sc-fem view`` inlines): model axes and units and one signed morph target per mode, without
+normal deltas -- the page drives signed weights itself, orients its camera by the up axis and
+converts to metres with ``scale_m_per_unit``.
+
+Positions, normals, UVs and morph targets are float32; indices uint32.
 """
 
 from __future__ import annotations
@@ -32,6 +80,22 @@ MAX_ANIMATION_TARGETS = 256
 
 DEFAULT_AMPLITUDE = 0.05
 """Largest displacement of a mode at weight 1, as a fraction of the bounding-box diagonal."""
+
+LAYOUTS = ("engine", "viewer")
+"""``engine``: +Y up, metres, two targets per mode with normal deltas (files); ``viewer``: the web
+viewer's model-axes, model-units, one-signed-target-per-mode document (see the module docstring)."""
+
+MATERIAL = {"name": "sc_fem default (dielectric)", "baseColorFactor": [0.7, 0.7, 0.7, 1.0],
+            "metallicFactor": 0.0, "roughnessFactor": 0.6, "doubleSided": True}
+"""The default PBR metallic-roughness material of every exported primitive."""
+
+CREASE_DEGREES = 60.0
+"""A vertex's normal takes the faces of the vertices sharing its position whose normal is within this of its own."""
+
+UP_TO_GLTF = {"z": ((1, 0, 0), (0, 0, 1), (0, -1, 0)),
+              "y": ((1, 0, 0), (0, 1, 0), (0, 0, 1)),
+              "x": ((0, -1, 0), (1, 0, 0), (0, 0, 1))}
+"""Rotation ``R`` (rows: glTF X, Y, Z in model coordinates) turning the model's up axis onto +Y."""
 
 _FLOAT, _UINT = 5126, 5125                 # glTF componentType codes
 _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
@@ -67,36 +131,100 @@ class _Blob:
         return b"".join(self.parts)
 
 
-def _normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray | None:
-    if len(faces) == 0:
-        return None
-    tri = vertices[faces]
-    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])          # area-weighted face normals
-    vn = np.zeros_like(vertices)
-    np.add.at(vn, faces.ravel(), np.repeat(fn, 3, axis=0))
-    length = np.linalg.norm(vn, axis=1, keepdims=True)
-    return np.where(length > 0, vn / np.where(length > 0, length, 1.0), np.array([0.0, 0.0, 1.0]))
+class _Normals:
+    """Vertex normals of a triangle mesh with fixed connectivity, for its rest and displaced shapes.
+
+    Area-weighted face normals summed at each vertex. Vertices that share a rest position (a mesh
+    split at UV seams, or at creases) also take the faces of their twins whose rest normal lies
+    within :data:`CREASE_DEGREES` of their own: a UV seam shows no shading seam and a crease stays
+    sharp. Which faces count is decided once, at rest, and used for every displaced shape, so
+    normal deltas are continuous.
+    """
+
+    def __init__(self, rest: np.ndarray, faces: np.ndarray) -> None:
+        rest = np.asarray(rest, dtype=float)
+        self.faces = faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+        n = len(rest)
+        _, group = np.unique(rest, axis=0, return_inverse=True)
+        group = group.ravel()
+        # every (vertex, corner) pair whose corner lies at the vertex's position
+        corner_v = faces.ravel()
+        order = np.argsort(group[corner_v], kind="stable")
+        per_group = np.bincount(group[corner_v], minlength=int(group.max()) + 1)
+        start = np.concatenate([[0], np.cumsum(per_group)[:-1]])
+        reps = per_group[group]
+        pair_v = np.repeat(np.arange(n), reps)
+        offset = np.arange(len(pair_v)) - np.repeat(np.cumsum(reps) - reps, reps)
+        pair_c = order[start[group][pair_v] + offset]
+        fn = self._face_normals(rest)
+        own = _unit(self._sum(fn, pair_v[corner_v[pair_c] == pair_v], (pair_c // 3)[corner_v[pair_c] == pair_v], n))
+        cos = np.einsum("ij,ij->i", _unit(fn[pair_c // 3]), own[pair_v])
+        keep = (corner_v[pair_c] == pair_v) | (cos >= np.cos(np.radians(CREASE_DEGREES)))
+        self.pair_v, self.pair_f, self.n = pair_v[keep], pair_c[keep] // 3, n
+
+    def _face_normals(self, v: np.ndarray) -> np.ndarray:
+        tri = v[self.faces]
+        return np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])     # area-weighted face normals
+
+    @staticmethod
+    def _sum(fn: np.ndarray, pair_v: np.ndarray, pair_f: np.ndarray, n: int) -> np.ndarray:
+        return np.column_stack([np.bincount(pair_v, weights=fn[pair_f, i], minlength=n) for i in range(3)])
+
+    def __call__(self, vertices: np.ndarray) -> np.ndarray:
+        """Unit vertex normals of ``vertices`` (same vertex order as the rest shape), shape (n, 3)."""
+        fn = self._face_normals(np.asarray(vertices, dtype=float))
+        return _unit(self._sum(fn, self.pair_v, self.pair_f, self.n), fallback=(0.0, 1.0, 0.0))
 
 
-def _document(vertices, faces, targets, weights, extras, *, times=None, anim_weights=None,
-              interpolation: str = "LINEAR", name: str = "sc_fem"):
-    """A pygltflib GLTF2 with one mesh (and optionally one weights animation) and its binary blob."""
+def _unit(a: np.ndarray, fallback=None) -> np.ndarray:
+    length = np.linalg.norm(a, axis=1, keepdims=True)
+    out = a / np.where(length > 0, length, 1.0)
+    return out if fallback is None else np.where(length > 0, out, np.asarray(fallback, dtype=float))
+
+
+def _document(vertices, faces, extras, *, targets=(), normal_fn=None, normals=None, uv=None, weights=(),
+              times=None, anim_weights=None, target_normals: bool = True, name: str = "sc_fem"):
+    """A pygltflib GLTF2 with one mesh (and optionally one LINEAR weights animation).
+
+    ``vertices`` / ``targets`` are already in glTF axes and units; ``normal_fn(positions)`` gives
+    unit vertex normals (the rest ``NORMAL`` unless ``normals`` is given, and the targets' deltas).
+    """
     import pygltflib as g
 
     gltf = g.GLTF2(asset=g.Asset(version="2.0", generator="sc_fem"))
     blob = _Blob(gltf)
-    v32 = np.asarray(vertices, dtype=np.float32)
-    attrs = g.Attributes(POSITION=blob.add(v32, "VEC3", target=_ARRAY_BUFFER, minmax=True))
-    nrm = _normals(np.asarray(vertices, dtype=float), faces)
-    if nrm is not None:
-        attrs.NORMAL = blob.add(nrm.astype(np.float32), "VEC3", target=_ARRAY_BUFFER)
-    prim = g.Primitive(attributes=attrs, mode=4 if len(faces) else 0)
+    vertices = np.asarray(vertices, dtype=float)
+    attrs = g.Attributes(POSITION=blob.add(vertices.astype(np.float32), "VEC3", target=_ARRAY_BUFFER, minmax=True))
+    rest_n = None
+    if len(faces):
+        rest_n = normal_fn(vertices)
+        written = rest_n if normals is None else normals
+        attrs.NORMAL = blob.add(written.astype(np.float32), "VEC3", target=_ARRAY_BUFFER)
+    if uv is not None:
+        attrs.TEXCOORD_0 = blob.add(np.asarray(uv, dtype=np.float32), "VEC2", target=_ARRAY_BUFFER)
+    gltf.materials.append(g.Material(
+        name=MATERIAL["name"], doubleSided=MATERIAL["doubleSided"],
+        pbrMetallicRoughness=g.PbrMetallicRoughness(baseColorFactor=list(MATERIAL["baseColorFactor"]),
+                                                    metallicFactor=MATERIAL["metallicFactor"],
+                                                    roughnessFactor=MATERIAL["roughnessFactor"])))
+    prim = g.Primitive(attributes=attrs, mode=4 if len(faces) else 0, material=0)
     if len(faces):
         prim.indices = blob.add(np.asarray(faces, dtype=np.uint32).ravel(), "SCALAR", target=_ELEMENT_ARRAY_BUFFER)
-    prim.targets = [{"POSITION": blob.add(np.asarray(t, dtype=np.float32), "VEC3", target=_ARRAY_BUFFER,
-                                          minmax=True)} for t in targets]
-    gltf.meshes.append(g.Mesh(name=name, primitives=[prim], weights=[float(w) for w in weights],
-                              extras={"targetNames": list(extras.get("target_names", [])), "sc_fem": extras}))
+    prim.targets = []
+    for d in targets:
+        d = np.asarray(d, dtype=float)
+        tgt = {"POSITION": blob.add(d.astype(np.float32), "VEC3", target=_ARRAY_BUFFER, minmax=True)}
+        if rest_n is not None and target_normals:
+            tgt["NORMAL"] = blob.add((normal_fn(vertices + d) - rest_n).astype(np.float32), "VEC3",
+                                     target=_ARRAY_BUFFER)
+        prim.targets.append(tgt)
+    if not prim.targets:
+        prim.targets = None
+    mesh = g.Mesh(name=name, primitives=[prim], extras={"targetNames": list(extras.get("target_names", [])),
+                                                        "sc_fem": extras})
+    if len(targets):
+        mesh.weights = [float(w) for w in weights]
+    gltf.meshes.append(mesh)
     gltf.nodes.append(g.Node(name=name, mesh=0))
     gltf.scenes.append(g.Scene(nodes=[0]))
     gltf.scene = 0
@@ -105,7 +233,7 @@ def _document(vertices, faces, targets, weights, extras, *, times=None, anim_wei
         w_acc = blob.add(np.asarray(anim_weights, dtype=np.float32).ravel(), "SCALAR")
         gltf.animations.append(g.Animation(
             name=f"{name} playback",
-            samplers=[g.AnimationSampler(input=t_acc, output=w_acc, interpolation=interpolation)],
+            samplers=[g.AnimationSampler(input=t_acc, output=w_acc, interpolation="LINEAR")],
             channels=[g.AnimationChannel(sampler=0, target=g.AnimationChannelTarget(node=0, path="weights"))]))
     data = blob.bytes()
     gltf.buffers.append(g.Buffer(byteLength=len(data)))
@@ -132,6 +260,48 @@ def _load(source, what: str = "mode or animation file"):
     return load_animation(path) if npz_kind(path, what=what) == ANIMATION_KIND else load_modes(path)
 
 
+def _surface(mesh, rest: np.ndarray):
+    """``(uv or None, normals or None)`` of the source mesh ``mesh`` (path or trimesh), checked to
+    have the vertices ``rest`` (model units) in the same order."""
+    import trimesh
+
+    if mesh is None:
+        return None, None
+    if not isinstance(mesh, trimesh.Trimesh):
+        from ..errors import MeshFileError
+        from ..geometry.mesh import load_mesh
+
+        path = Path(mesh)
+        if str(mesh).startswith("builtin:"):
+            load_mesh(str(mesh))                  # a valid name; built-ins carry no UVs
+            return None, None
+        if not path.is_file():
+            raise MeshFileError(f"mesh file not found: {path}")
+        try:
+            loaded = trimesh.load(str(path), process=False, force=None)
+        except Exception as exc:  # noqa: BLE001 - third-party readers raise anything
+            raise MeshFileError(f"cannot read {path} for its UVs: {type(exc).__name__}: {exc}") from None
+        if isinstance(loaded, trimesh.Scene):
+            geoms = [g for g in loaded.geometry.values() if isinstance(g, trimesh.Trimesh)]
+            loaded = geoms[0] if len(geoms) == 1 else None
+        if not isinstance(loaded, trimesh.Trimesh):
+            return None, None                     # point clouds, multi-part scenes: no per-vertex UVs here
+        mesh = loaded
+    v = np.asarray(mesh.vertices, dtype=float)
+    diag = float(np.linalg.norm(np.ptp(rest, axis=0)))
+    if v.shape != rest.shape or not np.allclose(v, rest, rtol=0, atol=1e-9 * max(diag, 1e-300)):
+        raise InputError(f"the mesh has {len(v)} vertices that are not the {len(rest)} of the mode/animation "
+                         "file: give the mesh the modes were computed from (as sc-fem precompute-modes read it)")
+    uv = getattr(mesh.visual, "uv", None)
+    uv = None if uv is None or np.shape(uv) != (len(v), 2) else np.asarray(uv, dtype=float)
+    if uv is not None:
+        uv = np.column_stack([uv[:, 0], 1.0 - uv[:, 1]])          # glTF's UV origin is the top left
+    normals = None
+    if "vertex_normals" in getattr(mesh, "_cache", ()):              # given by the file (e.g. OBJ vn)
+        normals = _unit(np.asarray(mesh.vertex_normals, dtype=float), fallback=(0.0, 0.0, 1.0))
+    return uv, normals
+
+
 def mode_scales(basis, amplitude: float = DEFAULT_AMPLITUDE) -> np.ndarray:
     """``s_k`` (m kg^1/2): the modal coordinate at which mode ``k``'s largest vertex displacement
     is ``amplitude`` times the bounding-box diagonal, shape (k,)."""
@@ -140,13 +310,79 @@ def mode_scales(basis, amplitude: float = DEFAULT_AMPLITUDE) -> np.ndarray:
     return np.where(peak > 0, amplitude * diag / np.where(peak > 0, peak, 1.0), 0.0)
 
 
+def split_weights(w) -> np.ndarray:
+    """Signed mode weights ``(..., k)`` as the two-targets-per-mode weights ``(..., 2k)``:
+    ``[max(w_0, 0), max(-w_0, 0), max(w_1, 0), ...]``, all in [0, 1] when ``|w| <= 1``."""
+    w = np.asarray(w, dtype=float)
+    out = np.empty(w.shape[:-1] + (2 * w.shape[-1],))
+    out[..., 0::2], out[..., 1::2] = np.maximum(w, 0.0), np.maximum(-w, 0.0)
+    return out
+
+
+def signed_weights(weights) -> np.ndarray:
+    """The inverse of :func:`split_weights`: ``weights[..., 0::2] - weights[..., 1::2]``."""
+    weights = np.asarray(weights, dtype=float)
+    return weights[..., 0::2] - weights[..., 1::2]
+
+
+def moving_modes(basis, *, impulse=None, mode: int | None = None) -> np.ndarray:
+    """Indices of the modes a baked playback moves: ``mode``, or those with ``phi_k(vertex) . J != 0``
+    for ``impulse = (vertex, J)`` (the others stay at rest)."""
+    if mode is not None:
+        return np.array([int(mode)])
+    if impulse is None:
+        return np.zeros(0, dtype=int)
+    vertex, J = impulse
+    dv = np.asarray(basis.modes[:, int(vertex), :], dtype=float) @ np.asarray(J, dtype=float)
+    return np.flatnonzero(dv)
+
+
+def aliased_modes(frequencies, fps: float, moving=None) -> list[int]:
+    """Indices of the modes above ``fps / 2`` (among ``moving``, default all): a playback sampled at
+    ``fps`` shows them as a slow sway that is not there (the rule of ``sc-fem play``)."""
+    f = np.asarray(frequencies, dtype=float)
+    idx = np.arange(len(f)) if moving is None else np.asarray(moving, dtype=int)
+    return [int(i) for i in idx if f[i] > 0.5 * float(fps)]
+
+
+def alias_warning(frequencies, fps: float, moving=None) -> str | None:
+    """The sentence ``sc-fem play`` prints for modes above half the frame rate, or None."""
+    high = aliased_modes(frequencies, fps, moving)
+    if not high:
+        return None
+    nyquist = 0.5 * float(fps)
+    fs = ", ".join(f"{frequencies[i]:.3g}" for i in high[:6]) + (", ..." if len(high) > 6 else "")
+    return (f"{len(high)} mode(s) ({fs} Hz) lie above half the frame rate ({nyquist:g} Hz): they alias "
+            f"into a slow sway that is not there; raise --fps or precompute with --max-frequency {nyquist:g}")
+
+
+def _axes(up: str, scale: float, units: str, engine: bool) -> tuple[np.ndarray, float, dict]:
+    if up not in UP_TO_GLTF:
+        raise InputError(f"up must be 'x', 'y' or 'z', got {up!r}")
+    if not engine:
+        return np.eye(3), 1.0, {"up": up, "gltf_up": "the model's own (the viewer turns it)",
+                                "model_to_gltf": np.eye(3).tolist(), "units": "model units",
+                                "scale_m_per_unit": float(scale)}
+    R = np.asarray(UP_TO_GLTF[up], dtype=float)
+    return R, float(scale), {"up": up, "gltf_up": "+Y", "model_to_gltf": R.tolist(), "units": units,
+                             "scale_m_per_unit": float(scale),
+                             "note": "glTF point = model_to_gltf @ (scale_m_per_unit * model point)"}
+
+
 def gltf_document(source, *, amplitude: float = DEFAULT_AMPLITUDE, impulse=None, mode: int | None = None,
-                  duration: float = 2.0, fps: float = 30.0):
-    """The pygltflib document of :func:`export_gltf` (see there), not written."""
+                  duration: float = 2.0, fps: float = 30.0, up: str = "z", mesh=None, layout: str = "engine"):
+    """The pygltflib document of :func:`export_gltf` (see there), not written.
+
+    ``layout="viewer"`` gives the web viewer's document (model axes and units, one signed morph
+    target per mode, no normal deltas; see the module docstring) instead of the engine one.
+    """
     from .._validate import positive_scalar
     from ..modes.player import ModalPlayer
     from .animation import Animation
 
+    if layout not in LAYOUTS:
+        raise InputError(f"layout must be one of {LAYOUTS}, got {layout!r}")
+    engine = layout == "engine"
     obj = _load(source)
     if isinstance(obj, Animation):
         if impulse is not None or mode is not None:
@@ -155,48 +391,99 @@ def gltf_document(source, *, amplitude: float = DEFAULT_AMPLITUDE, impulse=None,
         if T > MAX_ANIMATION_TARGETS:
             raise InputError(f"the animation has {T} frames; at most {MAX_ANIMATION_TARGETS} are exported as morph "
                              "targets: write fewer frames (sc-fem simulate --fps) or subsample")
-        disp = obj.positions - obj.rest_vertices[None]
-        extras = {"kind": "vertex_animation", "frames": T, "times_s": [float(t) for t in obj.times],
-                  "units": "model units", "meta": obj.meta, "target_names": [f"frame {i}" for i in range(T)]}
-        return _document(obj.rest_vertices, obj.faces, disp, np.eye(T)[0], extras,
-                         times=obj.times - obj.times[0], anim_weights=np.eye(T), interpolation="LINEAR")
+        recorded = obj.meta.get("scale") if isinstance(obj.meta, dict) else None
+        known = isinstance(recorded, (int, float)) and bool(np.isfinite(recorded)) and recorded > 0
+        scale, units = (float(recorded), "m") if known else (1.0, "model units (the file records no scale)")
+        R, k, axes = _axes(up, scale, units, engine)
+        rest = np.asarray(obj.rest_vertices, dtype=float)
+        uv, normals = _surface(mesh, rest)
+        disp = (np.asarray(obj.positions, dtype=float) - rest[None]) * k @ R.T
+        extras = {"kind": "vertex_animation", "layout": layout, "frames": T,
+                  "times_s": [float(t) for t in obj.times], "units": axes["units"], "axes": axes,
+                  "encoding": "one morph target per frame (its displacement from the rest mesh); a LINEAR "
+                              "weights channel blends frame i into i + 1, every weight in [0, 1]",
+                  "targets": [{"frame": i, "time_s": float(t)} for i, t in enumerate(obj.times)],
+                  "meta": obj.meta, "target_names": [f"frame {i}" for i in range(T)]}
+        verts = rest * k @ R.T
+        return _document(verts, obj.faces, extras, targets=disp, normal_fn=_Normals(verts, obj.faces),
+                         normals=None if normals is None else normals @ R.T, uv=uv, weights=np.eye(T)[0],
+                         times=obj.times - obj.times[0], anim_weights=np.eye(T), target_normals=engine)
     basis = obj
     amplitude = positive_scalar(amplitude, "amplitude")
-    s = mode_scales(basis, amplitude)
-    targets = np.asarray(basis.modes, dtype=float) * (s / basis.scale)[:, None, None]
-    extras = {"kind": "modes", "frequencies_hz": [float(f) for f in basis.frequencies],
-              "damping_ratios": [float(z) for z in basis.damping], "mode_scales": [float(x) for x in s],
-              "mode_scales_units": "m kg^0.5 (modal coordinate q_k = weight_k * mode_scales[k])",
-              "amplitude": amplitude, "scale_m_per_unit": float(basis.scale), "source": basis.source,
-              "material": basis.material, "fixed": basis.fix_record,
-              "target_names": [f"mode {k}: {f:.4g} Hz" for k, f in enumerate(basis.frequencies)]}
-    if impulse is None and mode is None:
-        return _document(basis.vertices, basis.faces, targets, np.zeros(basis.n_modes), extras)
     if impulse is not None and mode is not None:
         raise InputError("give impulse or mode for the baked playback, not both")
-    player = ModalPlayer(basis)
-    if impulse is not None:
-        vertex, J = impulse
-        player.impulse(int(vertex), J)
-        what = f"impulse {list(map(float, J))} N s on vertex {int(vertex)}"
-    if mode is not None:
-        player.excite(int(mode), amplitude * float(np.linalg.norm(np.ptp(basis.vertices, axis=0))))
-        what = f"mode {int(mode)} released from weight 1"
-    times = player.times(duration, fps)
-    q = player.coordinates(times)                                        # (T, k), exact
-    w = np.where(s > 0, q / np.where(s > 0, s, 1.0), 0.0)
-    extras["playback"] = {"what": what, "fps": float(fps), "duration_s": float(times[-1])}
-    return _document(basis.vertices, basis.faces, targets, w[0], extras, times=times, anim_weights=w)
+    R, k, axes = _axes(up, basis.scale, "m", engine)
+    rest = np.asarray(basis.vertices, dtype=float)
+    uv, normals = _surface(mesh, rest)
+    s = mode_scales(basis, amplitude)
+    extras = {"kind": "modes", "layout": layout, "frequencies_hz": [float(f) for f in basis.frequencies],
+              "damping_ratios": [float(z) for z in basis.damping], "amplitude": amplitude,
+              "scale_m_per_unit": float(basis.scale), "units": axes["units"], "axes": axes,
+              "source": basis.source, "material": basis.material, "fixed": basis.fix_record}
+    playback = None
+    if impulse is not None or mode is not None:
+        player = ModalPlayer(basis)
+        if impulse is not None:
+            vertex, J = impulse
+            player.impulse(int(vertex), J)
+            what = f"impulse {list(map(float, J))} N s on vertex {int(vertex)}"
+        else:
+            player.excite(int(mode), amplitude * float(np.linalg.norm(np.ptp(basis.vertices, axis=0))))
+            what = f"mode {int(mode)} released from weight 1"
+        times = player.times(duration, fps)
+        q = player.coordinates(times)                                    # (T, k), exact
+        if engine:                                 # no weight beyond 1: widen s_k where the motion needs it
+            peak = np.abs(np.where(s > 0, q / np.where(s > 0, s, 1.0), 0.0)).max(axis=0)
+            s = s * np.maximum(peak, 1.0)
+        w = np.where(s > 0, q / np.where(s > 0, s, 1.0), 0.0)
+        moving = moving_modes(basis, impulse=impulse, mode=mode)
+        playback = {"what": what, "fps": float(fps), "duration_s": float(times[-1]),
+                    "aliased_modes": aliased_modes(basis.frequencies, fps, moving),
+                    "nyquist_hz": 0.5 * float(fps)}
+    extras["mode_scales"] = [float(x) for x in s]
+    d = np.asarray(basis.modes, dtype=float) * s[:, None, None]          # metres
+    if engine:
+        d = d @ R.T
+        targets = np.stack([d, -d], axis=1).reshape(-1, *d.shape[1:])
+        extras["mode_scales_units"] = ("m kg^0.5 (modal coordinate q_k = w_k * mode_scales[k], w_k = "
+                                       "weights[2k] - weights[2k+1])")
+        extras["encoding"] = ("two morph targets per mode: target 2k = +mode k, target 2k+1 = -mode k; the signed "
+                              "mode weight w_k = weights[2k] - weights[2k+1], both weights in [0, 1]")
+        extras["targets"] = [{"mode": j, "sign": sg} for j in range(basis.n_modes) for sg in (1, -1)]
+        extras["target_names"] = [f"mode {j} {'+' if sg > 0 else '-'} ({f:.4g} Hz)"
+                                  for j, f in enumerate(basis.frequencies) for sg in (1, -1)]
+        split = split_weights
+    else:
+        targets = d / basis.scale                                        # model units
+        extras["mode_scales_units"] = "m kg^0.5 (modal coordinate q_k = weight_k * mode_scales[k])"
+        extras["encoding"] = "one morph target per mode, signed weights"
+        extras["targets"] = [{"mode": j, "sign": 1} for j in range(basis.n_modes)]
+        extras["target_names"] = [f"mode {j}: {f:.4g} Hz" for j, f in enumerate(basis.frequencies)]
+        split = np.asarray
+    verts = rest * k @ R.T
+    common = dict(targets=targets, normal_fn=_Normals(verts, basis.faces), uv=uv, target_normals=engine,
+                  normals=None if normals is None else normals @ R.T)
+    if playback is None:
+        return _document(verts, basis.faces, extras, weights=np.zeros(len(targets)), **common)
+    extras["playback"] = playback
+    ws = split(w)
+    if engine:
+        ws = np.clip(ws, 0.0, 1.0)                 # rounding only: |w| <= 1 by the widened scales
+    return _document(verts, basis.faces, extras, weights=ws[0], times=times, anim_weights=ws, **common)
 
 
 def export_gltf(source, path, *, amplitude: float = DEFAULT_AMPLITUDE, impulse=None, mode: int | None = None,
-                duration: float = 2.0, fps: float = 30.0) -> Path:
+                duration: float = 2.0, fps: float = 30.0, up: str = "z", mesh=None) -> Path:
     """Write a mode file (or :class:`~sc_fem.ModalBasis`) or a vertex animation as glTF 2.0.
+
+    The file is +Y up and in metres, with a dielectric double-sided material, normals, and two
+    morph targets (``+`` and ``-``) with normal deltas per mode so every weight is in [0, 1]; see
+    the module docstring for the exact encoding.
 
     Parameters
     ----------
     source : ModalBasis, Animation or path
-        Modes (one morph target per mode) or a vertex animation (one morph target per frame).
+        Modes (two morph targets per mode) or a vertex animation (one morph target per frame).
     path : str or Path
         ``.glb`` (binary, one file) or ``.gltf`` (JSON with the buffer embedded as a data URI).
     amplitude : float
@@ -206,7 +493,14 @@ def export_gltf(source, path, *, amplitude: float = DEFAULT_AMPLITUDE, impulse=N
     mode : int, optional
         Bake mode ``mode`` released from weight 1 as a weights animation.
     duration, fps : float
-        Length (s) and sampling rate of a baked playback.
+        Length (s) and sampling rate of a baked playback. Moving modes above ``fps / 2`` alias:
+        they are listed in ``extras.sc_fem.playback.aliased_modes`` (see :func:`alias_warning`).
+    up : {"z", "y", "x"}
+        The model's up axis, turned onto glTF's +Y (default ``"z"``, as ``sc-fem view``).
+    mesh : str, Path or trimesh.Trimesh, optional
+        The source mesh, with the mode file's vertices in the same order: its UVs become
+        ``TEXCOORD_0`` and its file normals (if any) ``NORMAL``. A mode file stores no UVs; without
+        ``mesh`` the glTF has none.
 
     Returns
     -------
@@ -218,7 +512,8 @@ def export_gltf(source, path, *, amplitude: float = DEFAULT_AMPLITUDE, impulse=N
     kind = path.suffix.lower()
     if kind not in (".glb", ".gltf"):
         raise InputError(f"glTF is written as .glb or .gltf, got {path.name!r}")
-    doc = gltf_document(source, amplitude=amplitude, impulse=impulse, mode=mode, duration=duration, fps=fps)
+    doc = gltf_document(source, amplitude=amplitude, impulse=impulse, mode=mode, duration=duration, fps=fps,
+                        up=up, mesh=mesh)
     with atomic_path(path, suffix=kind) as tmp:
         if kind == ".glb":
             doc.save_binary(str(tmp))
@@ -230,6 +525,8 @@ def export_gltf(source, path, *, amplitude: float = DEFAULT_AMPLITUDE, impulse=N
     return path
 
 
-def glb_bytes(source, **options) -> bytes:
-    """The ``.glb`` of :func:`export_gltf` as bytes (for the web viewer)."""
-    return b"".join(gltf_document(source, **options).save_to_bytes())
+def glb_bytes(source, *, layout: str = "viewer", **options) -> bytes:
+    """A ``.glb`` as bytes: by default the web viewer's document (``layout="viewer"``: model axes
+    and units, one signed morph target per mode), with ``layout="engine"`` the bytes
+    :func:`export_gltf` writes to a ``.glb``. ``options`` as for :func:`gltf_document`."""
+    return b"".join(gltf_document(source, layout=layout, **options).save_to_bytes())
