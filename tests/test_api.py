@@ -59,3 +59,13 @@ def test_errors_share_one_base():
 def test_readme_python_examples_run(block, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     exec(compile(block, str(README), "exec"), {})
+
+
+def test_the_package_declares_its_type_hints():
+    """PEP 561: ``py.typed`` ships with the package (listed in the package data)."""
+    from pathlib import Path
+
+    root = Path(sc_fem.__file__).parent
+    assert (root / "py.typed").is_file()
+    pyproject = (root.parents[1] / "pyproject.toml").read_text()
+    assert '"py.typed"' in pyproject
