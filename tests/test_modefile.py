@@ -8,6 +8,7 @@ import zipfile
 import numpy as np
 import pytest
 
+import sc_fem
 from sc_fem.errors import FileFormatError
 from sc_fem.lattice.cubes import CubeModel
 from sc_fem.modes.modal import modal
@@ -133,3 +134,27 @@ def test_nan_and_shape_errors(saved, tmp_path):
         load_modes(_rewrite(saved, tmp_path / "key.npz", damping=None))
     with pytest.raises(FileFormatError, match="ascending"):
         load_modes(_rewrite(saved, tmp_path / "order.npz", frequencies=freqs[::-1].copy()))
+
+
+def test_modes_open_in_paraview_readers_as_vtu(tmp_path, capsys):
+    """``sc-fem export modes.npz -o modes.vtu``: meshio and pyvista (VTK's own reader) read one
+    point array per mode equal to the modes, and the frequencies as field data."""
+    import meshio
+    import pyvista as pv
+
+    from sc_fem._cli.main import main
+
+    basis = sc_fem.modal("builtin:beam", resolution=8, n_modes=3, fix="x<min+0.01")
+    npz = sc_fem.save_modes(basis, tmp_path / "beam.modes.npz")
+    out = tmp_path / "beam.vtu"
+    assert main(["export", str(npz), "-o", str(out), "--quiet"]) == 0
+    m = meshio.read(out)
+    assert sorted(m.point_data) == ["mode_0", "mode_1", "mode_2"]
+    for k in range(3):
+        np.testing.assert_allclose(m.point_data[f"mode_{k}"], basis.modes[k], rtol=1e-6, atol=1e-7 * np.abs(basis.modes).max())
+    np.testing.assert_allclose(np.ravel(m.field_data["frequency_Hz"]), basis.frequencies, rtol=1e-12)
+    grid = pv.read(out)
+    assert grid.n_points == len(basis.vertices) and "mode_2" in grid.point_data
+    np.testing.assert_allclose(np.ravel(grid.field_data["frequency_Hz"]), basis.frequencies, rtol=1e-12)
+    assert main(["export", str(npz), "-o", str(out), "--mode", "0"]) != 0        # one clear line
+    assert "playback" in capsys.readouterr().err

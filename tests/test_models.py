@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import sc_fem
-from sc_fem import models
+from sc_fem.geometry import models
 
 
 @pytest.mark.parametrize("name, extents", [("chair", (0.47, 0.49, 0.86)), ("bridge", (24.0, 4.2, 9.0)),

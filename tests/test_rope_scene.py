@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from sc_fem import models
+from sc_fem.geometry import models
 from sc_fem.dynamics.rope_scene import rope_scene
 
 

@@ -18,7 +18,8 @@ def register(sub) -> None:
                                    "morph target per frame with a weights channel. A mode file stores no UVs: give "
                                    "the source mesh with --mesh to keep its UVs.")
     p.add_argument("source", metavar="FILE", help="mode file or animation file (.npz)")
-    p.add_argument("-o", "--output", required=True, help="output .glb (or .gltf)")
+    p.add_argument("-o", "--output", required=True,
+                   help="output .glb (or .gltf); .vtu: the mode shapes for ParaView (one point array per mode)")
     p.add_argument("--amplitude", type=float, default=0.05,
                    help="largest displacement of a mode at weight 1, fraction of the bounding-box diagonal (0.05)")
     g = p.add_mutually_exclusive_group()
@@ -59,6 +60,20 @@ def run_export(args) -> int:
             raise InputError(f"--impulse VERTEX must be an integer vertex index, got {args.impulse[0]:g}")
         impulse = (int(args.impulse[0]), args.impulse[1:])
     source = _load(args.source)
+    if str(args.output).lower().endswith(".vtu"):          # ParaView: one point array per mode
+        from ..io.modes import save_modes_vtu
+        from ..modes.modal import ModalBasis
+
+        if not isinstance(source, ModalBasis):
+            raise InputError(f"{args.source}: only a mode file can be written as .vtu (an animation: "
+                             "sc-fem simulate -o run.xdmf)")
+        if impulse is not None or args.mode is not None:
+            raise InputError(".vtu holds the mode shapes; --impulse/--mode bake a playback, which is glTF's")
+        path = save_modes_vtu(source, args.output)
+        if not args.quiet:
+            print(f"wrote {path} ({path.stat().st_size / 1024:.0f} KiB): point arrays mode_K, field data "
+                  f"frequency_Hz, damping_ratio")
+        return 0
     path = export_gltf(source, args.output, amplitude=args.amplitude, impulse=impulse, mode=args.mode,
                        duration=args.duration, fps=args.fps, up=args.up, mesh=args.mesh)
     if impulse is not None or args.mode is not None:        # the rule and words of sc-fem play

@@ -41,7 +41,7 @@ OUTPUTS: dict[str, tuple[tuple[str, ...], bool]] = {
     "simulate": ((".npz", ".xdmf", ".mp4", ".gif"), False),
     "reconstruct": ((".npz",), False),
     "demo": ((), True),
-    "export": ((".glb", ".gltf"), False),
+    "export": ((".glb", ".gltf", ".vtu"), False),
     "view": ((".html", ".htm"), False),
 }
 """Per command: the output extensions it writes and whether a folder is accepted; checked (and the
