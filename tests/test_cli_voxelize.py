@@ -34,7 +34,7 @@ def test_npz_round_trip(tmp_path, capsys):
 def test_vtu_and_png(tmp_path):
     import meshio
 
-    assert main(["voxelize", "builtin:bridge", "-r", "16", "--method", "exact", "-o", str(tmp_path / "b.vtu"), "-q"]) == 0
+    assert main(["voxelize", "builtin:bridge", "-r", "16", "--occupancy", "exact", "-o", str(tmp_path / "b.vtu"), "-q"]) == 0
     m = meshio.read(tmp_path / "b.vtu")
     assert m.cells[0].type == "hexahedron" and "youngs_Pa" in m.cell_data
     assert main(["voxelize", "builtin:beam", "-r", "8", "-o", str(tmp_path / "b.png"), "-q"]) == 0
