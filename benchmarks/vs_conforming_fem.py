@@ -49,7 +49,7 @@ import scipy.sparse as sp
 from _common import SHARED_MESHES, out_path, print_table, save_figure
 
 import sc_fem
-from sc_fem.fem.reference import solve_reference
+from sc_fem.fem.reference import solve_reference, uniform_field
 
 ELEMENTS = ("q1", "q1sri", "q1i")
 AXES = "xyz"
@@ -380,14 +380,7 @@ def thin_reference(geo: dict, level, static: bool = True) -> dict:
         mm = asm(mass_form, Basis(m, elem, intorder=4, elements=cells)).tocsr()   # P2 . P2: degree 4, exact
         K, M = (k, mm) if K is None else (K + k, M + mm)
 
-    def uniform(c):
-        out = np.zeros(basis.N)
-        for k in range(3):
-            out[basis.nodal_dofs[k]] = c[k]
-            out[basis.edge_dofs[k]] = c[k]
-        return out
-
-    ez = uniform(np.array([0.0, 0.0, 1.0]))
+    ez = uniform_field(basis, np.array([0.0, 0.0, 1.0]))
     mass = float(ez @ (M @ ez))
     t["assemble"] = time.perf_counter() - t0
     t0 = time.perf_counter()
@@ -416,7 +409,7 @@ def thin_reference(geo: dict, level, static: bool = True) -> dict:
         ext = float(np.ptp(m.p[a]))
         held = basis.doflocs[a] <= m.p[a].min() + 1e-9 * ext
         if geo["gravity"] is not None:
-            f = M @ uniform(geo["gravity"])
+            f = M @ uniform_field(basis, geo["gravity"])
         else:
             boxes = geo["load_boxes"]
             p = m.p[:, m.t]                                  # (3, 4, tets)

@@ -21,6 +21,7 @@ import sc_fem
 import sc_fem.io.gltf
 from sc_fem._cli.main import main
 from sc_fem.errors import InputError
+from test_gltf_viewer import _browser, _validate  # headless Chromium, the Khronos validator: one each
 
 ROOT = Path(__file__).resolve().parents[1]
 NPM = ROOT / "build" / "npm" / "node_modules"
@@ -75,15 +76,6 @@ def _area_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     for c in range(3):
         np.add.at(out, f[:, c], fn)
     return out / np.linalg.norm(out, axis=1, keepdims=True)
-
-
-def _validate(path: Path) -> dict:
-    if shutil.which("node") is None or not VALIDATOR.is_dir():
-        pytest.skip("the Khronos glTF validator is not installed (make viewer installs it from the npm registry)")
-    script = ("const v=require(process.argv[1]);const d=new Uint8Array(require('fs').readFileSync(process.argv[2]));"
-              "v.validateBytes(d).then(r=>console.log(JSON.stringify(r.issues)))")
-    out = subprocess.run(["node", "-e", script, str(VALIDATOR), str(path)], capture_output=True, text=True, timeout=120)
-    return json.loads(out.stdout)
 
 
 # ------------------------------------------------------------------------------------ axes, units
@@ -398,25 +390,6 @@ try {
 """
 
 
-def _browser():
-    try:
-        from selenium import webdriver
-        from selenium.webdriver.chrome.options import Options
-        from selenium.webdriver.chrome.service import Service
-    except ImportError:
-        pytest.skip("selenium is not installed (pip install -e .[test])")
-    chromium, driver = shutil.which("chromium"), shutil.which("chromedriver")
-    if not (chromium and driver):
-        pytest.skip("headless Chromium is not installed (Debian: apt-get install chromium chromium-driver)")
-    opts = Options()
-    for a in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--window-size=700,800",
-              "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"):
-        opts.add_argument(a)
-    opts.binary_location = chromium
-    opts.set_capability("goog:loggingPrefs", {"browser": "ALL"})
-    return webdriver.Chrome(service=Service(driver), options=opts)
-
-
 def test_threejs_shows_the_chair_upright_and_lit(chair, tmp_path):
     """three.js' GLTFLoader in headless Chromium, a plain scene (hemisphere + directional light,
     the file's own material): the chair's height is along +Y (its world box and its silhouette are
@@ -437,7 +410,7 @@ def test_threejs_shows_the_chair_upright_and_lit(chair, tmp_path):
     page.write_text("<!doctype html><html><body style='margin:0;overflow:hidden'>"
                     f"<script type='application/octet-stream' id='glb'>{base64.b64encode(glb.read_bytes()).decode()}"
                     f"</script><script>{(tmp_path / 'bundle.js').read_text()}</script></body></html>")
-    d = _browser()
+    d = _browser("700,800")
     try:
         d.get(page.as_uri())
         t0 = time.time()

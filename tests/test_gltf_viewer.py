@@ -161,7 +161,7 @@ def test_animation_export_and_its_limit(tmp_path):
         export_gltf(anim, tmp_path / "b.obj")
 
 
-def _browser():
+def _browser(size: str = "1100,700"):
     try:
         from selenium import webdriver
         from selenium.webdriver.chrome.options import Options
@@ -173,7 +173,7 @@ def _browser():
         pytest.skip("headless Chromium is not installed (Debian: apt-get install chromium chromium-driver; "
                     "make test does it where it can)")
     opts = Options()
-    for a in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--window-size=1100,700",
+    for a in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", f"--window-size={size}",
               "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"):
         opts.add_argument(a)
     opts.binary_location = chromium

@@ -164,6 +164,16 @@ def tetrahedralize(mesh: Any, *, scale: float = 1.0, n_tets: int = 20000, max_fa
     return TetMesh(np.asarray(nodes, dtype=float), np.asarray(tets, dtype=np.int64), vol, repair)
 
 
+def uniform_field(basis, c: np.ndarray) -> np.ndarray:
+    """The P2 field ``u = c`` everywhere (c (3,)) as a DOF vector of the vector ``basis`` (nodal and
+    edge DOFs of each of the 3 components)."""
+    out = np.zeros(basis.N)
+    for k in range(3):                                    # the 3 components, not a loop over nodes
+        out[basis.nodal_dofs[k]] = c[k]
+        out[basis.edge_dofs[k]] = c[k]
+    return out
+
+
 def _free_free(K, M, n_modes: int, shift: float) -> np.ndarray:
     from scipy.sparse.linalg import LinearOperator, eigsh
 
@@ -229,14 +239,7 @@ def solve_reference(mesh: Any, *, youngs: float, poisson: float, density: float,
 
     M = asm(mass_form, mbasis)
 
-    def uniform(c: np.ndarray) -> np.ndarray:           # the field u = c everywhere (P2: nodal + edge dofs)
-        out = np.zeros(basis.N)
-        for k in range(3):                                # the 3 components, not a loop over nodes
-            out[basis.nodal_dofs[k]] = c[k]
-            out[basis.edge_dofs[k]] = c[k]
-        return out
-
-    ones = uniform(np.array([0.0, 0.0, 1.0]))
+    ones = uniform_field(basis, np.array([0.0, 0.0, 1.0]))
     total_mass = float(ones @ (M @ ones))
     timings["assemble"] = time.perf_counter() - t0
     t0 = time.perf_counter()
@@ -249,7 +252,7 @@ def solve_reference(mesh: Any, *, youngs: float, poisson: float, density: float,
         held = np.asarray(clamp(basis.doflocs.T), dtype=bool)
         if not held.any():
             raise InputError("clamp selects no node of the reference mesh")
-        f = M @ uniform(g)
+        f = M @ uniform_field(basis, g)
         free = np.flatnonzero(~held)
         u = np.zeros(basis.N)
         u[free] = factorize(sp.csr_matrix(K)[free][:, free].tocsc()).solve(f[free])

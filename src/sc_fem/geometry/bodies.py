@@ -65,17 +65,6 @@ class Bodies:
     joined_by_containment: int
 
 
-def _part_boxes(vertices: np.ndarray, parts: MeshParts) -> tuple[np.ndarray, np.ndarray]:
-    k = parts.n_parts
-    fv = parts.faces.reshape(-1)
-    flab = np.repeat(parts.label, 3)
-    lo = np.full((k, 3), np.inf)
-    hi = np.full((k, 3), -np.inf)
-    np.minimum.at(lo, flab, vertices[fv])
-    np.maximum.at(hi, flab, vertices[fv])
-    return lo, hi
-
-
 def _box_pairs(lo: np.ndarray, hi: np.ndarray, pad: float, chunk: int = 2048) -> np.ndarray:
     """Pairs ``(i, j)``, i < j, of boxes that overlap once grown by ``pad`` (shape (p, 2))."""
     out = []
@@ -253,7 +242,7 @@ def find_bodies(vertices: np.ndarray, parts: MeshParts, weld: float) -> Bodies:
     k = parts.n_parts
     if k <= 1:
         return Bodies(np.zeros(k, np.int64), k, float(weld), 0, 0, 0)
-    lo, hi = _part_boxes(vertices, parts)
+    lo, hi = parts.boxes(vertices)
     diag = float(np.linalg.norm(hi.max(0) - lo.min(0)))
     reach = max(float(weld), MIN_WELD_FRACTION * diag)
     edges = [np.zeros((0, 2), np.int64)]

@@ -76,6 +76,16 @@ class MeshParts:
         """Number of parts."""
         return len(self.closed)
 
+    def boxes(self, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Bounding box of every part: lowest and highest corner, each (k, 3), model units."""
+        fv = self.faces.reshape(-1)
+        flab = np.repeat(self.label, 3)
+        lo = np.full((self.n_parts, 3), np.inf)
+        hi = np.full((self.n_parts, 3), -np.inf)
+        np.minimum.at(lo, flab, vertices[fv])
+        np.maximum.at(hi, flab, vertices[fv])
+        return lo, hi
+
     def closed_faces(self) -> np.ndarray:
         """Boolean mask (m,) of the faces that belong to closed parts."""
         return self.closed[self.label]

@@ -24,13 +24,7 @@ def bbox_cover(vertices: np.ndarray, parts, which: np.ndarray, origin: np.ndarra
     """How many of the parts ``which`` (k,) bool have a bounding box covering each grid cell
     (3-D difference array + prefix sums, vectorized over parts)."""
     dims = np.asarray(dims, dtype=np.int64)
-    k = parts.n_parts
-    fv = parts.faces.reshape(-1)
-    flab = np.repeat(parts.label, 3)
-    lo = np.full((k, 3), np.inf)
-    hi = np.full((k, 3), -np.inf)
-    np.minimum.at(lo, flab, vertices[fv])
-    np.maximum.at(hi, flab, vertices[fv])
+    lo, hi = parts.boxes(vertices)
     sel = np.flatnonzero(which)
     a = voxel_index(lo[sel], origin, pitch, dims)
     b = voxel_index(hi[sel], origin, pitch, dims) + 1
