@@ -196,13 +196,15 @@ not the empty one beyond it (which became a 1/128-mass "floor cube": +0.18 % mas
 a post at resolution 8)."""
 
 
-def _solid_parts(vertices, faces, fill: str):
-    """The mesh's parts and which of them are solids under ``fill`` (None for a point cloud)."""
+def _solid_parts(vertices, faces, fill: str, parts=None):
+    """The mesh's parts (``parts`` when already found for these faces) and which of them are
+    solids under ``fill`` ((None, None) for a point cloud)."""
     if not len(faces):
         return None, None
-    from ..geometry.inside import mesh_parts
+    if parts is None:
+        from ..geometry.inside import mesh_parts
 
-    parts = mesh_parts(vertices, faces)
+        parts = mesh_parts(vertices, faces)
     solid_part = {"auto": parts.closed, "solid": np.ones(parts.n_parts, bool),
                   "surface": np.zeros(parts.n_parts, bool)}[fill]
     return parts, solid_part
@@ -330,17 +332,17 @@ LOOSE_FRACTION = 0.01
 
 
 def _find_bodies(vertices, faces, opts: VoxelOptions, longest: float, cloud: bool):
-    """The bodies of ``topology="pieces"`` (None for ``"grid"`` and point clouds) and the body of
-    every face, shape (m,)."""
+    """The bodies of ``topology="pieces"`` (None for ``"grid"`` and point clouds), the body of
+    every face, shape (m,), and the mesh's parts (None when not needed), found once."""
     if cloud or opts.topology == "grid":
-        return None, np.zeros(len(faces), np.int64)
+        return None, np.zeros(len(faces), np.int64), None
     from ..geometry.bodies import DEFAULT_WELD_FRACTION, find_bodies
     from ..geometry.inside import mesh_parts
 
     parts = mesh_parts(vertices, faces)
     weld = DEFAULT_WELD_FRACTION * longest if opts.weld is None else opts.weld
     bodies = find_bodies(vertices, parts, weld)
-    return bodies, bodies.of_part[parts.label]
+    return bodies, bodies.of_part[parts.label], parts
 
 
 def _batches(vertices, faces, face_body, n_bodies: int, grid) -> tuple[list[np.ndarray], tuple[np.ndarray, np.ndarray]]:
@@ -363,12 +365,13 @@ def _batches(vertices, faces, face_body, n_bodies: int, grid) -> tuple[list[np.n
     return [np.flatnonzero(batch == k) for k in range(batch.max() + 1)], (a, b)
 
 
-def _body_samples(surf: Samples, vertices, faces, grid, opts: VoxelOptions, thick: float, face_body, bodies):
+def _body_samples(surf: Samples, vertices, faces, grid, opts: VoxelOptions, thick: float, face_body, bodies,
+                  parts=None):
     """The mass samples (faces: global indices) and the body of each; one voxelization pass per
     batch of bodies whose cells cannot meet (:func:`_batches`)."""
     origin, pitch, dims = grid
     if bodies is None or bodies.n_bodies == 1 or not len(faces):
-        solids = _solid_parts(vertices, faces, opts.fill)
+        solids = _solid_parts(vertices, faces, opts.fill, parts)       # the parts bodies found, reused
         occupied, counts = _occupied_cells(surf, vertices, faces, grid, opts.occupancy,
                                            located=_inward(vertices, *solids, surf, pitch))
         samples, parts_info, shells, counts["floor_cubes"] = _mass_samples(occupied, surf, vertices, faces, grid,
@@ -501,9 +504,9 @@ def voxelize(mesh: Any, options: VoxelOptions | None = None, **fields: Any) -> C
     else:
         surf = surface_grid_samples(vertices, faces, spacing)
 
-    bodies, face_body = _find_bodies(vertices, faces, opts, longest, cloud)
+    bodies, face_body, parts = _find_bodies(vertices, faces, opts, longest, cloud)
     samples, sample_body, parts_info, shells, counts = _body_samples(surf, vertices, faces, grid, opts, thick,
-                                                                    face_body, bodies)
+                                                                    face_body, bodies, parts)
     E, nu, rho, m = _sample_material(samples, surf, len(faces), youngs, poisson, density, opts)
 
     # ---- hash samples to voxels and accumulate (vectorized: unique + bincount); one cube per body and voxel
