@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed-stamp
 VIEWER := src/sc_fem/io/_viewer/viewer.js
 OUT    ?= out
 
-.PHONY: demo test venv viewer bench notebooks clean
+.PHONY: demo test venv viewer bench notebooks docs clean
 
 $(STAMP): pyproject.toml Makefile
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -35,6 +35,16 @@ test: $(STAMP) $(VIEWER)
 
 bench: $(STAMP)
 	for f in benchmarks/[a-z]*.py; do $(PY) $$f $(BENCH_ARGS) || exit 1; done
+
+# the documentation site (Sphinx; sources in docs/, notebooks shown with their stored outputs)
+DOCS_STAMP := $(VENV)/.docs-stamp
+$(DOCS_STAMP): $(STAMP)
+	$(PY) -m pip install -q -e ".[docs]"
+	touch $(DOCS_STAMP)
+
+docs: $(DOCS_STAMP)
+	$(VENV)/bin/sphinx-build -E -W --keep-going -q -b html docs build/docs
+	@echo "docs: build/docs/index.html"
 
 notebooks: $(STAMP)
 	$(PY) notebooks/execute.py           # re-execute and store the outputs (plots) in place

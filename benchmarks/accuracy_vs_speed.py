@@ -24,7 +24,7 @@ import scipy.sparse.linalg as sla
 
 from _common import best_time, print_table, save_figure
 from sc_fem.fem.assemble import Assembler, assemble
-from sc_fem.fem.boundary import fixed_dofs, fixed_nodes
+from sc_fem.lattice.boundary import fixed_dofs, fixed_nodes
 from sc_fem.lattice.cubes import CubeModel
 from sc_fem.fem.linsolve import factorize
 

@@ -1,4 +1,4 @@
-"""Film strips of three contact scenes for the README (``docs/contact_*.png``):
+"""Film strips of three contact scenes for the docs (``docs/contact_*.png``, shown on docs/guide/dynamics.md):
 
 * **drop**: the built-in chair dropped 10 cm onto the ground (r24, friction 0.3);
 * **stack**: a chair dropped onto another chair (one mesh, two bodies, r24);

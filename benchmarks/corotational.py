@@ -22,7 +22,7 @@ from _common import print_table, save_figure
 import sc_fem
 from sc_fem.dynamics import make_integrator
 from sc_fem.dynamics.loads import Gravity, LoadSet
-from sc_fem.fem.boundary import fixed_nodes
+from sc_fem.lattice.boundary import fixed_nodes
 from sc_fem.lattice.cubes import CubeModel
 
 

@@ -106,8 +106,8 @@ def run_solver(name, K, M, k, near_null):
 
 def bench_cantilevers(sizes, k, limits):
     from sc_fem.fem.assemble import Assembler
-    from sc_fem.fem.boundary import fixed_dofs, fixed_nodes
-    from sc_fem.fem.eigen import rigid_body_modes
+    from sc_fem.lattice.boundary import fixed_dofs, fixed_nodes
+    from sc_fem.fem.rigid import rigid_body_modes
     from sc_fem.lattice.cubes import CubeModel
 
     rows, results = [], {}
@@ -154,7 +154,7 @@ def bench_models(cases, k):
 
 
 def bench_playback(n_vertices=100_000, k=32, seconds=2.0):
-    from sc_fem.modes.modal import ModalBasis
+    from sc_fem.modes.basis import ModalBasis
     from sc_fem.modes.player import ModalPlayer
 
     rng = np.random.default_rng(0)

@@ -31,7 +31,8 @@ STAGE = textwrap.dedent(r"""
     import json, os, sys, threading, time
     import numpy as np, trimesh
     import sc_fem
-    from sc_fem.fem.eigen import solve_eigen, rigid_body_modes
+    from sc_fem.fem.eigen import solve_eigen
+    from sc_fem.fem.rigid import rigid_body_modes
 
     PAGE = os.sysconf("SC_PAGE_SIZE")
 

@@ -22,7 +22,7 @@ import numpy as np
 from _common import print_table, save_figure
 from scipy.linalg import eigh
 
-from sc_fem.fem.boundary import fixed_nodes
+from sc_fem.lattice.boundary import fixed_nodes
 from sc_fem.errors import InstabilityError
 from sc_fem.dynamics import make_integrator, record
 from sc_fem.dynamics.loads import Gravity, LoadSet

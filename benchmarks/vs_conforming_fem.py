@@ -32,6 +32,8 @@ one cell move together) and the default, otherwise only the one grid. Writes
 
     python benchmarks/vs_conforming_fem.py --thin     # resolutions 16, 24, 32, 48, 64
     python benchmarks/vs_conforming_fem.py --thin --cases i_beam two_plates --resolutions 16 32
+    python benchmarks/vs_conforming_fem.py --thin --reuse-reference --elements q1i q2 q3 --resolutions 16 32 \
+        --cases i_beam channel portal_frame plate table --tag higher_order      # the higher-order cubes
 """
 
 from __future__ import annotations
@@ -49,6 +51,7 @@ import scipy.sparse as sp
 from _common import SHARED_MESHES, out_path, print_table, save_figure
 
 import sc_fem
+from sc_fem.fem.highorder import DEGREES
 from sc_fem.fem.reference import solve_reference, uniform_field
 
 ELEMENTS = ("q1", "q1sri", "q1i")
@@ -480,7 +483,10 @@ def side_load_points(boxes, spacing=(4e-3, 1e-3, 1e-3)) -> np.ndarray:
 def run_thin_sc_fem(geo: dict, r: int, element: str, ref: dict, topo: dict) -> dict:
     """sc_fem on one thin case at resolution ``r`` (the voxelizer's default topology): cubes,
     mass, 10 free-free frequencies, the best MAC of each reference mode among its 10 modes, the
-    static case; seconds."""
+    static case; seconds. Trilinear cubes are sampled at the reference's vertices through the
+    trilinear embedding, higher-order cubes (``"q2"``, ``"q3"``) through their own field."""
+    if element in DEGREES:
+        return run_thin_higher_order(geo, r, element, ref, topo)
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -504,11 +510,57 @@ def run_thin_sc_fem(geo: dict, r: int, element: str, ref: dict, topo: dict) -> d
         st = sc_fem.solve_static(model, element=element, fix=spec, forces=forces)
     t_static = time.perf_counter() - t0
     u = np.asarray(W @ st.displacements)
+    return _thin_result(model, basis.frequencies[:10], mac, u, ref, t_vox + t_modal, t_static, topo)
+
+
+def _thin_result(model, freqs, mac, u, ref, seconds, static_seconds, topo) -> dict:
     umax = float(np.linalg.norm(u, axis=1).max())
-    return dict(cubes=model.n_cubes, mass=model.total_mass, freqs=basis.frequencies[:10], mac=mac,
+    return dict(cubes=model.n_cubes, mass=model.total_mass, freqs=freqs, mac=mac,
                 umax=umax, u_field_err=float(np.linalg.norm(u - ref["u"]) / np.linalg.norm(ref["u"])),
-                seconds=t_vox + t_modal, static_seconds=t_static, pitch=float(model.pitch),
+                seconds=seconds, static_seconds=static_seconds, pitch=float(model.pitch),
                 topology=_topology_of(model, topo), weld=model.info.get("weld"), bodies=model.info.get("bodies"))
+
+
+def run_thin_higher_order(geo: dict, r: int, element: str, ref: dict, topo: dict) -> dict:
+    """:func:`run_thin_sc_fem` for degree-2/3 cubes: modes and static solution sampled at the
+    reference's vertices through the degree-p field; gravity through the consistent mass, the side
+    load through the field's transpose (the same loads :func:`sc_fem.solve_static` applies)."""
+    from sc_fem.fem.highorder import HighOrderAssembler
+    from sc_fem.fem.linsolve import factorize
+    from sc_fem.modes.options import ModalRequest
+    from sc_fem.modes.solve import solve_scene
+
+    t0 = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        scene = sc_fem.Scene.from_mesh(geo["mesh"], resolution=r, fill="solid", **STEEL)
+    t_vox = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    solved = solve_scene(scene, ModalRequest(n_modes=10, element=element))
+    t_modal = time.perf_counter() - t0
+    asm = solved.asm
+    Wr = asm.cubes.map_points(ref["verts"])
+    phi = asm.vertex_field(solved.X[:, ~solved.rigid][:, :10], Wr).transpose(2, 0, 1)
+    mac = mac_matrix(ref["modes"], phi)
+    model = scene.model
+    t0 = time.perf_counter()
+    spec = f"{AXES[geo['fix_axis']]}<min+0"
+    held = sc_fem.Scene.from_model(model, geo["mesh"], fix=spec)
+    sa = HighOrderAssembler(held, element)
+    sa.cubes._G, sa.cubes._M = asm.cubes._integrals()          # the same integrals: not twice
+    K = sa.stiffness()
+    if geo["gravity"] is not None:
+        b = sa.mass() @ np.tile(geo["gravity"], sa.cubes.n_nodes)[sa.free_dofs]
+    else:
+        pts = side_load_points(geo["load_boxes"])
+        fp = np.zeros((len(pts), 3))
+        fp[:, 0] = SIDE_LOAD / len(pts)
+        b = (sa.cubes.map_points(pts).T @ fp).reshape(-1)[sa.free_dofs]
+    x = factorize(K).solve(b)
+    u = sa.vertex_field(x, sa.cubes.map_points(ref["verts"]))
+    t_static = time.perf_counter() - t0
+    freqs = np.sqrt(np.maximum(solved.lam[~solved.rigid][:10], 0.0)) / (2 * np.pi)
+    return _thin_result(model, freqs, mac, u, ref, t_vox + t_modal, t_static, topo)
 
 
 def two_plates_study(element: str, levels, reuse: bool, topo: dict) -> tuple[list, dict]:
@@ -602,10 +654,10 @@ def thin_main(args) -> int:
           + f", keep default {topo['keep_default']!r}", file=sys.stderr, flush=True)
     with warnings.catch_warnings():              # imports and JIT compilation outside the timings
         warnings.simplefilter("ignore")
-        warm = sc_fem.voxelize(_shapes().plate(), resolution=8, fill="solid", **STEEL)
+        warm = sc_fem.Scene.from_mesh(_shapes().plate(), resolution=8, fill="solid", fix="x<min+0", **STEEL)
         for element in elements:
-            sc_fem.modal(warm, n_modes=10, element=element, keep_lattice=True)
-            sc_fem.solve_static(warm, element=element, fix="x<min+0", gravity=(0, 0, -9.81))
+            sc_fem.modal(warm, n_modes=10, element=element)
+            sc_fem.solve_static(warm, element=element, gravity=(0, 0, -9.81))
     texts, record, series = [], {"cases": {}, "voxel_topology": topo, "git": git}, {}
     for name in names:
         if name == "two_plates":

@@ -49,7 +49,7 @@ def linear_fem(m: CubeModel):
     import scipy.sparse.linalg as sla
 
     from sc_fem.fem.assemble import assemble
-    from sc_fem.fem.boundary import fixed_dofs
+    from sc_fem.lattice.boundary import fixed_dofs
     from sc_fem.fem.static import solve_static
 
     tip = m.node_index[:, 0] == m.dims[0]

@@ -1,4 +1,5 @@
-"""The public API: every name in ``sc_fem.__all__`` resolves, and the README's Python examples run."""
+"""The public API: every name in ``sc_fem.__all__`` resolves, and the Python examples of the README
+and of the documentation pages (``docs/**/*.md``) run."""
 
 from __future__ import annotations
 
@@ -9,7 +10,19 @@ import pytest
 
 import sc_fem
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+PAGES = [README, *sorted((ROOT / "docs").rglob("*.md"))]
+"""The README and every Markdown page of the docs: each ```python block is an example that runs."""
+
+
+def _python_blocks() -> list:
+    blocks = []
+    for page in PAGES:
+        found = re.findall(r"```python\n(.*?)```", page.read_text(), flags=re.DOTALL)
+        name = page.relative_to(ROOT).as_posix()
+        blocks += [pytest.param(page, block, id=f"{name}[{k}]") for k, block in enumerate(found)]
+    return blocks
 
 
 def test_every_public_name_resolves():
@@ -55,10 +68,15 @@ def test_errors_share_one_base():
             assert issubclass(obj, sc_fem.ScFemError)
 
 
-@pytest.mark.parametrize("block", re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.S))
-def test_readme_python_examples_run(block, tmp_path, monkeypatch):
+def test_the_docs_have_examples_to_run():
+    pages = {param.values[0] for param in _python_blocks()}
+    assert README in pages and len(pages) >= 8
+
+
+@pytest.mark.parametrize(("page", "block"), _python_blocks())
+def test_readme_python_examples_run(page, block, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    exec(compile(block, str(README), "exec"), {})
+    exec(compile(block, str(page), "exec"), {})
 
 
 def test_the_package_declares_its_type_hints():

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sc_fem.fem.assemble import Assembler, assemble
-from sc_fem.fem.boundary import fixed_dofs
+from sc_fem.lattice.boundary import fixed_dofs
 from sc_fem.fem.elements import element_stiffness, reference_mass
 from sc_fem.errors import InputError
 from sc_fem.lattice.cubes import CubeModel

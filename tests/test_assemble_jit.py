@@ -18,9 +18,9 @@ from sc_fem import _jit
 from sc_fem.errors import InputError
 from sc_fem.fem import assemble_jit
 from sc_fem.fem.assemble import Assembler
-from sc_fem.fem.boundary import fixed_dofs
+from sc_fem.lattice.boundary import fixed_dofs
 from sc_fem.fem.elements import cube_stiffness, element_stiffness, reference_mass
-from sc_fem.fem.material import lame
+from sc_fem.material import lame
 from sc_fem.lattice.cubes import CubeModel
 from test_assemble_pattern import FIXINGS, assert_same, coo_oracle, free_mask, lattice
 

@@ -15,7 +15,7 @@ import pytest
 import scipy.sparse as sp
 
 from sc_fem.fem.assemble import Assembler, assemble
-from sc_fem.fem.boundary import fixed_dofs
+from sc_fem.lattice.boundary import fixed_dofs
 from sc_fem.fem.elements import cube_stiffness, reference_mass
 from sc_fem.lattice.cubes import CubeModel
 

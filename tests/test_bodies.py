@@ -272,13 +272,13 @@ def test_component_labels_of_bodies_match_ndimage_on_one_body():
     against a breadth-first loop oracle with two bodies sharing cells."""
     from scipy import ndimage
 
-    from sc_fem.lattice.cubes import CONNECTIVITY, _piece_labels
+    from sc_fem.lattice.topology import CONNECTIVITY, piece_labels
 
     rng = np.random.default_rng(5)
     dims = np.array([7, 6, 5])
     cells = np.argwhere(rng.random(tuple(dims)) < 0.35)
     for conn in ("face", "edge", "vertex"):
-        lab, n = _piece_labels(cells, dims, conn, np.zeros(len(cells), np.int64))
+        lab, n = piece_labels(cells, dims, conn, np.zeros(len(cells), np.int64))
         grid = np.zeros(tuple(dims), bool)
         grid[tuple(cells.T)] = True
         ref, n_ref = ndimage.label(grid, ndimage.generate_binary_structure(3, CONNECTIVITY[conn]))
@@ -288,7 +288,7 @@ def test_component_labels_of_bodies_match_ndimage_on_one_body():
     piece = np.r_[np.zeros(len(cells), np.int64), np.ones(len(cells), np.int64)]
     order = np.lexsort((piece, *np.ravel_multi_index(both.T, dims)[None]))
     both, piece = both[order], piece[order]
-    lab, n = _piece_labels(both, dims, "face", piece)
+    lab, n = piece_labels(both, dims, "face", piece)
     seen = -np.ones(len(both), np.int64)
     pos = {(tuple(c), p): i for i, (c, p) in enumerate(zip(both.tolist(), piece.tolist()))}
     k = 0

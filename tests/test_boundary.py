@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sc_fem.fem.boundary import FixSpec, fixed_dofs, fixed_nodes, parse_fix, read_vertex_file
+from sc_fem.lattice.boundary import FixSpec, fixed_dofs, fixed_nodes, parse_fix, read_vertex_file
 from sc_fem.errors import BoundaryConditionError
 from sc_fem.lattice.cubes import CubeModel
 

@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 from scipy.linalg import eigh
 
-from sc_fem.fem.boundary import fixed_nodes
+from sc_fem.lattice.boundary import fixed_nodes
 from sc_fem.errors import InstabilityError
 from sc_fem.dynamics import record, simulate
-from sc_fem.dynamics.central import CentralDifference, critical_time_step, max_frequency
+from sc_fem.dynamics.base import critical_time_step, max_frequency
+from sc_fem.dynamics.central import CentralDifference
 from sc_fem.dynamics.loads import Gravity, LoadSet
 from sc_fem.dynamics.newmark import Newmark
 from sc_fem.lattice.cubes import CubeModel

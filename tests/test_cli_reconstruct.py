@@ -102,11 +102,13 @@ def test_cli_reconstruct_missing_file(tmp_path, capsys):
 
 def test_reconstruction_file_round_trips_through_its_reader(tmp_path):
     from sc_fem.errors import FileFormatError, InputError
-    from sc_fem.reconstruct import load_reconstruction, reconstruct_animation, save_reconstruction
+    from sc_fem.io.animation import load_animation
+    from sc_fem.io.reconstruction import load_reconstruction, save_reconstruction
+    from sc_fem.reconstruct import reconstruct_animation
 
     anim = tmp_path / "anim.npz"
     _tube_animation(anim)
-    res = reconstruct_animation(anim, [0, 5, 10], n_curves=4, n_points=16, n_control=8)
+    res = reconstruct_animation(load_animation(anim), [0, 5, 10], n_curves=4, n_points=16, n_control=8)
     path = save_reconstruction(tmp_path / "r.npz", res)
     back = load_reconstruction(path)
     for name in ("frames", "fit_frames", "curves_pde", "curves_bspline", "E_A_pde", "E_M_bspline", "vertices_pde"):

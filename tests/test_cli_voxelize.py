@@ -78,7 +78,7 @@ def test_demo_writes_every_output(tmp_path, capsys):
         assert (out / name).stat().st_size > 0, name
     text = capsys.readouterr().out
     assert "demo finished" in text and ("chair.html" in text) == BUNDLE.is_file()
-    rec = sc_fem.reconstruct.load_reconstruction(out / "rope_reconstruction.npz")
+    rec = sc_fem.io.load_reconstruction(out / "rope_reconstruction.npz")
     assert rec.meta["segments"] == 2 and rec.E_A_pde.mean() < 0.006986 and rec.E_M_pde.max() < 0.019478
 
 

@@ -93,7 +93,7 @@ def test_fixed_nodes_of_the_integrator_bind_the_contact():
     """The integrator binds the contact to its own fixed nodes: the projection never moves them,
     and vertices embedded only in fixed cubes are not pushed (their depth is reported). The block
     rests on the ground and is thrown down into it (a ground cutting it at t = 0 is refused)."""
-    from sc_fem.fem.boundary import fixed_nodes
+    from sc_fem.lattice.boundary import fixed_nodes
     from sc_fem.errors import InputError
 
     mesh, model = block(z0=0.0)

@@ -11,7 +11,8 @@ from scipy.linalg import polar
 from sc_fem.fem.elements import element_stiffness
 from sc_fem.dynamics import record
 from sc_fem.dynamics import corotational as corot_mod
-from sc_fem.dynamics.corotational import Corotational, cube_rotations, polar_rotation
+from sc_fem.dynamics.corotational import Corotational
+from sc_fem.dynamics.kinematics import cube_rotations, polar_rotation
 from sc_fem.dynamics.loads import Gravity, LoadSet
 from sc_fem.dynamics.newmark import Newmark
 from sc_fem.errors import InputError

@@ -103,7 +103,8 @@ def test_friction_stops_a_sliding_block_where_coulomb_says():
 
     from sc_fem.dynamics.contact import Ground
     from sc_fem.dynamics.driver import record
-    from sc_fem.dynamics.ipc import IPC, BarrierContact
+    from sc_fem.dynamics.barrier import BarrierContact
+    from sc_fem.dynamics.ipc import IPC
     from sc_fem.dynamics.loads import Gravity, LoadSet
 
     box = trimesh.creation.box(extents=[0.2, 0.2, 0.1])
@@ -220,7 +221,8 @@ def test_a_step_that_newton_cannot_finish_is_cut_in_two():
     intersection-free); with none that can converge, the error says what was tried and why."""
     from sc_fem.dynamics.contact import Ground
     from sc_fem.dynamics.driver import record
-    from sc_fem.dynamics.ipc import MAX_HALVINGS, IPC, BarrierContact
+    from sc_fem.dynamics.barrier import BarrierContact
+    from sc_fem.dynamics.ipc import MAX_HALVINGS, IPC
     from sc_fem.dynamics.loads import Gravity, LoadSet
     from sc_fem.errors import InstabilityError
 

@@ -17,7 +17,7 @@ from sc_fem.errors import ScFemWarning
 from sc_fem.lattice.gridcut import cut_by_grid
 from sc_fem.geometry.inside import mesh_parts
 from sc_fem.lattice.moments import column_moments
-from sc_fem.lattice.voxelize import grid_for
+from sc_fem.lattice.grid import grid_for
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "meshes"
 
@@ -201,7 +201,7 @@ def test_point_cloud_gets_a_sensible_grid_and_warns_when_dropping():
 # ---------------------------------------------------------------- 6. finite-cell moments
 def test_moment_matrices_of_a_full_cube_are_the_element_matrices():
     from sc_fem.fem.elements import element_stiffness, moment_mass, moment_stiffness, reference_mass
-    from sc_fem.fem.material import lame
+    from sc_fem.material import lame
     from sc_fem.lattice.moments import FULL
 
     lam, mu = lame(np.array([2e9, 1e6]), np.array([0.3, 0.45]))

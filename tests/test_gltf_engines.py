@@ -438,5 +438,5 @@ def test_threejs_shows_the_chair_upright_and_lit(chair, tmp_path):
     # lit: the spec's default material (metalness 1) renders the chair's near faces black and the
     # rest mid-grey here (mean 79, 27 % of its pixels below 40); the dielectric: mean ~205, none
     assert luminance.mean() > 150 and (luminance < 40).mean() < 0.05, (luminance.mean(), (luminance < 40).mean())
-    if os.environ.get("SC_FEM_WRITE_DOCS"):          # the README's picture is this test's screenshot
+    if os.environ.get("SC_FEM_WRITE_DOCS"):          # docs/guide/export.md shows this test's screenshot
         shutil.copyfile(tmp_path / "chair_threejs.png", Path(__file__).resolve().parents[1] / "docs" / "gltf_threejs.png")

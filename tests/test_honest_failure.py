@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from sc_fem._cli.main import main
-from sc_fem.io.animation import save_animation
+from sc_fem.io.animation import load_animation, save_animation
 
 
 # ------------------------------------------------------------------------------------ reconstruct
@@ -60,7 +60,7 @@ def test_reconstruct_of_an_impulse_fits_instead_of_reporting_1e10_as_success(tmp
     anim = _impulse_animation(tmp_path / "impulse.npz")
     out, rep = tmp_path / "r.npz", tmp_path / "r.md"
     assert main(["reconstruct", str(anim), "-o", str(out), "--report", str(rep)]) == 0
-    from sc_fem.reconstruct import load_reconstruction
+    from sc_fem.io.reconstruction import load_reconstruction
 
     res = load_reconstruction(out)
     # measured: PDE mean E_A 1.6e-3, max E_M 0.016 (B-spline 0.013 / 0.11); before, the search stopped
@@ -99,7 +99,7 @@ def test_a_failed_reconstruction_says_so_writes_its_output_and_exits_1(tmp_path,
     assert "above the threshold 0.02" in err[0] and "worse than the B-spline" in err[0]
     assert "fit FAILED" in cap.out and "Traceback" not in cap.err
     assert rep.read_text().startswith("**The PDE fit FAILED**: ")
-    from sc_fem.reconstruct import load_reconstruction
+    from sc_fem.io.reconstruction import load_reconstruction
 
     back = load_reconstruction(out)                 # written for inspection; the verdict comes back with it
     assert not back.ok and len(back.failures) == 3
@@ -112,7 +112,7 @@ def test_each_failure_criterion_on_its_own(tmp_path):
     t = np.linspace(0, 1, 5)
     pos = rest[None] + 0.01 * np.sin(t)[:, None, None] * rest[None, :, :1] ** 2 * np.array([0.0, 1.0, 0.0])
     save_animation(tmp_path / "a.npz", faces=np.zeros((0, 3), int), rest_vertices=rest, times=t, positions=pos)
-    good = reconstruct_animation(tmp_path / "a.npz", [0, 2, 4], n_curves=1, n_points=16, n_control=8)
+    good = reconstruct_animation(load_animation(tmp_path / "a.npz"), [0, 2, 4], n_curves=1, n_points=16, n_control=8)
     assert good.ok and good.failures == []
     shape = good.E_A_pde.shape
     fitted = good.fitted[:, None] & np.ones(shape, bool)
@@ -139,7 +139,7 @@ _RELEASE = threading.Event()
 def _beam_only(mesh, output, options):
     """A batch task (module level: dask pickles it by reference) computing the beam's modes; the
     other meshes never finish until ``_RELEASE`` and then write nothing."""
-    from sc_fem.modes import batch
+    from sc_fem.io import batch
 
     if mesh == "builtin:beam":
         return batch.__dict__["_real_precompute_one"](mesh, output, options)
@@ -154,7 +154,7 @@ def test_ctrl_c_during_a_dask_batch_names_the_completed_mode_files(tmp_path, mon
     import dask.distributed as dd
 
     from sc_fem.io.modes import load_modes
-    from sc_fem.modes import batch
+    from sc_fem.io import batch
 
     out = tmp_path / "out"
     out.mkdir()
@@ -186,7 +186,7 @@ def test_ctrl_c_during_a_dask_batch_names_the_completed_mode_files(tmp_path, mon
 
 
 def test_ctrl_c_during_a_serial_batch(tmp_path, monkeypatch):
-    from sc_fem.modes import batch
+    from sc_fem.io import batch
 
     monkeypatch.setitem(sys.modules, "dask.distributed", None)          # no dask: the serial loop
     real_one = batch.precompute_one
@@ -206,7 +206,7 @@ def test_ctrl_c_during_a_serial_batch(tmp_path, monkeypatch):
 
 _SCRIPT = textwrap.dedent('''
     import sys, time
-    import sc_fem.modes.batch as batch
+    import sc_fem.io.batch as batch
 
     _real = batch.precompute_one
 
@@ -296,7 +296,7 @@ def test_library_readers_refuse_damaged_files_alike(damaged):
     from sc_fem.errors import FileFormatError
     from sc_fem.io.animation import load_animation
     from sc_fem.io.modes import load_modes
-    from sc_fem.reconstruct import load_reconstruction
+    from sc_fem.io.reconstruction import load_reconstruction
 
     for reader, what in ((load_modes, "mode file"), (load_animation, "animation file"),
                          (load_reconstruction, "reconstruction file")):

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from sc_fem.fem.assemble import Assembler
-from sc_fem.fem.eigen import rigid_body_modes, solve_eigen
+from sc_fem.fem.eigen import solve_eigen
+from sc_fem.fem.rigid import rigid_body_modes
 from sc_fem.errors import InputError, SolverError
 from sc_fem.lattice.cubes import CubeModel
 from sc_fem.fem.linsolve import available_backends
@@ -120,7 +121,7 @@ def test_eigensolvers_agree():
 
 def test_auto_method_switches_to_lobpcg_when_the_factor_does_not_fit():
     from sc_fem.fem import eigen
-    from sc_fem.fem.boundary import fixed_dofs, fixed_nodes
+    from sc_fem.lattice.boundary import fixed_dofs, fixed_nodes
 
     # a thin plate: its estimated Cholesky fill (~ n^(4/3)) outgrows the LOBPCG estimate (~ nnz)
     # already at 3.6k DOFs, so a budget between the two exists for the very matrix modal factorizes
@@ -315,7 +316,7 @@ def test_block_v_cycle_is_the_column_v_cycle_symmetric_and_positive():
     definite (LOBPCG needs an SPD preconditioner)."""
     import pyamg
 
-    from sc_fem.fem.eigen import JACOBI, BlockVCycle
+    from sc_fem.fem.multigrid import JACOBI, BlockVCycle
 
     m = CubeModel.box((24, 4, 4), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
     asm = Assembler(m, "q1i", fixed_dofs=np.arange(3 * 25))

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.linalg import eigh
 
-from sc_fem.fem.boundary import fixed_nodes
+from sc_fem.lattice.boundary import fixed_nodes
 from sc_fem.errors import InputError
 from sc_fem.dynamics import make_integrator, record, simulate
 from sc_fem.dynamics.loads import Gravity, LoadSet

@@ -1,5 +1,7 @@
-"""Every ``sc-fem`` command in the README runs as written (in-process, in a scratch folder; the two
-placeholder inputs, ``my_model.obj`` and ``assets/*.obj``, are made first)."""
+"""Every ``sc-fem`` command in the README and in the documentation pages runs as written (in-process,
+in one scratch folder, in reading order: the README, then the pages in the order of the docs'
+table of contents, so later commands read earlier outputs; the two placeholder inputs,
+``my_model.obj`` and ``assets/*.obj``, are made first)."""
 
 from __future__ import annotations
 
@@ -12,12 +14,38 @@ import trimesh
 
 from sc_fem._cli.main import main
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+DOCS = ROOT / "docs"
+
+
+def _toctree_order(page: Path, seen: list[Path]) -> None:
+    """``page`` and the Markdown pages its ``{toctree}`` directives list, depth first."""
+    seen.append(page)
+    for tree in re.findall(r"```\{toctree\}\n(.*?)```", page.read_text(), flags=re.DOTALL):
+        for entry in tree.splitlines():
+            entry = entry.strip()
+            if not entry or entry.startswith(":"):
+                continue
+            child = (page.parent / entry).with_suffix(".md")
+            if child.is_file() and child not in seen:
+                _toctree_order(child, seen)
+
+
+def pages() -> list[Path]:
+    """The README, then the docs pages in reading order (any page outside the tables of contents
+    last)."""
+    ordered: list[Path] = []
+    _toctree_order(DOCS / "index.md", ordered)
+    rest = [p for p in sorted(DOCS.rglob("*.md")) if p not in ordered]
+    return [README, *ordered, *rest]
 
 
 def _commands() -> list[str]:
     out = []
-    for block in re.findall(r"```bash\n(.*?)```", README.read_text(), flags=re.S):
+    blocks = [block for page in pages()
+              for block in re.findall(r"```bash\n(.*?)```", page.read_text(), flags=re.DOTALL)]
+    for block in blocks:
         text = block.replace("\\\n", " ")
         for line in text.splitlines():
             line = line.split(" #")[0].strip()
@@ -29,6 +57,8 @@ def _commands() -> list[str]:
 def test_the_readme_has_commands_to_check():
     cmds = _commands()
     assert len(cmds) >= 9 and any("reconstruct" in c for c in cmds) and any("simulate" in c for c in cmds)
+    order = pages()                                 # the export page reads the modal page's mode file
+    assert order.index(DOCS / "guide" / "modal.md") < order.index(DOCS / "guide" / "export.md")
 
 
 @pytest.mark.slow

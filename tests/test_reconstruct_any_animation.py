@@ -11,8 +11,9 @@ import pytest
 from sc_fem import Scene
 from sc_fem._cli.main import main
 from sc_fem.dynamics.job import run_simulation
-from sc_fem.io.animation import write_animation
-from sc_fem.reconstruct import load_reconstruction, reconstruct_animation
+from sc_fem.io.animation import load_animation, write_animation
+from sc_fem.io.reconstruction import load_reconstruction
+from sc_fem.reconstruct import reconstruct_animation
 
 FIT = list(range(0, 21, 2))
 
@@ -47,12 +48,12 @@ def test_every_shared_mesh(tmp_path, shared_meshes):
     files = sorted(p for p in shared_meshes.iterdir() if p.suffix.lower() in (".obj", ".off", ".stl"))
     assert len(files) >= 8
     for path in files:                                # one animation per mesh (a handful)
-        res = reconstruct_animation(_animation(str(path), tmp_path / f"{path.stem}.npz"), FIT)
+        res = reconstruct_animation(load_animation(_animation(str(path), tmp_path / f"{path.stem}.npz")), FIT)
         _check(res)
 
 
 def test_segments_and_offset_are_counted_and_refused_when_impossible(tmp_path):
-    anim = _animation("builtin:rope", tmp_path / "a.npz")
+    anim = load_animation(_animation("builtin:rope", tmp_path / "a.npz"))
     one = reconstruct_animation(anim, FIT, segments=1, offset="none", curves_from="mesh")
     four = reconstruct_animation(anim, FIT, segments=4, offset="first", curves_from="mesh")
     assert one.meta["segments"] == 1 and four.meta["segments"] == 4 and four.meta["offset"] == "first"
@@ -74,7 +75,6 @@ def test_simulate_stores_the_lattice_and_reconstruct_maps_its_node_lines_back_ex
     """simulate writes the lattice (node motion + W); reconstruct fits its node lines and rebuilds
     the mesh through W -- closer to the simulated mesh than curves of mesh vertices. A lattice whose
     node lines are incomplete (the chair) is refused with the reason."""
-    from sc_fem.io.animation import load_animation
 
     scene = Scene.from_mesh("builtin:beam", resolution=24, fix="x<min+1e-9", youngs=1e6, poisson=0.3, density=1000)
     rec = run_simulation(scene, dt=0.01, duration=0.2, gravity=True, fps=100)
@@ -133,7 +133,7 @@ def test_surface_point_curves_store_no_vertex_index_and_bad_counts_are_input_err
     non-integer piece or control-point counts are refused, not truncated."""
     from sc_fem.errors import InputError
 
-    anim = _animation("builtin:beam", tmp_path / "a.npz")
+    anim = load_animation(_animation("builtin:beam", tmp_path / "a.npz"))
     res = reconstruct_animation(anim, FIT, curves_from="mesh")
     assert res.curve_vertex_index is None and res.vertices_pde.shape[1] == 8
     for bad in ({"segments": 2.7}, {"segments": "x"}, {"n_control": 7.5}):

@@ -90,7 +90,7 @@ def test_mode_sheet_marks_fixed_nodes_and_has_colour_bars(tmp_path):
 
     basis = sc_fem.modal("builtin:beam", resolution=8, fix="x<min+1e-6", n_modes=2)
     assert basis.fixed_points is not None and np.all(basis.fixed_points[:, 0] < 1e-6)
-    from sc_fem.modes.player import modes_sheet
+    from sc_fem.io.render import modes_sheet
 
     img = imageio.imread(modes_sheet(basis, tmp_path / "s.png", n_modes=2, window_size=(640, 300)))[..., :3]
     r, g, b = (img[..., k].astype(int) for k in range(3))

@@ -11,7 +11,9 @@ from sc_fem import _jit
 from sc_fem.errors import InputError
 from sc_fem.fem import spmm
 from sc_fem.fem.assemble import Assembler
-from sc_fem.fem.eigen import JACOBI, BlockVCycle, rigid_body_modes, solve_eigen
+from sc_fem.fem.eigen import solve_eigen
+from sc_fem.fem.multigrid import JACOBI, BlockVCycle
+from sc_fem.fem.rigid import rigid_body_modes
 from sc_fem.fem.spmm import BlockProduct
 from sc_fem.lattice.cubes import CubeModel
 

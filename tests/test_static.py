@@ -8,7 +8,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
 from sc_fem.fem.assemble import Assembler
-from sc_fem.fem.boundary import fixed_dofs, fixed_nodes
+from sc_fem.lattice.boundary import fixed_dofs, fixed_nodes
 from sc_fem.errors import InputError, SolverError
 from sc_fem.lattice.cubes import CubeModel
 from sc_fem.fem.linsolve import available_backends, factorize

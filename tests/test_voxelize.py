@@ -9,7 +9,7 @@ import trimesh
 
 import sc_fem
 from sc_fem.errors import InputError, MaterialError, ResolutionError, ScFemError
-from sc_fem.lattice.voxelize import grid_for, hash_samples
+from sc_fem.lattice.grid import grid_for, hash_samples
 
 
 def box_mesh(extents, corner=(0.0, 0.0, 0.0)):

@@ -11,7 +11,8 @@ import pytest
 from sc_fem.errors import BoundaryConditionError, InputError, InstabilityError, ScFemError
 from sc_fem.lattice.cubes import HEX_CORNERS, CubeModel
 from sc_fem.fem.static import solve_static
-from sc_fem.dynamics.xpbd import XPBDSolver, cube_colors, simulate_xpbd
+from sc_fem.dynamics.xpbd import XPBDSolver, simulate_xpbd
+from sc_fem.dynamics.xpbd_kernels import cube_colors
 from sc_fem.dynamics import xpbd_jit
 from sc_fem.dynamics.xpbd_stability import stability_sweep
 

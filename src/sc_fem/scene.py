@@ -5,13 +5,18 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any
+from typing import TYPE_CHECKING, Any, Iterable
 
 import numpy as np
 import scipy.sparse as sp
+from numpy.typing import ArrayLike
 
 from .errors import InputError
 from .lattice.cubes import CubeModel
+
+if TYPE_CHECKING:
+    from .lattice.boundary import Fix
+    from .lattice.embed import Embedding
 
 
 @dataclass(frozen=True, eq=False)
@@ -44,13 +49,14 @@ class Scene:
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def from_mesh(cls, source: Any, options: Any = None, *, fix=None, fix_vertices=None,
-                  **fields: Any) -> "Scene":
+    def from_mesh(cls, source: Any, options: Any = None, *, fix: Iterable[Fix] | Fix | None = None,
+                  fix_vertices: ArrayLike | None = None, **fields: Any) -> "Scene":
         """Load (any :func:`sc_fem.load_mesh` input), voxelize and fix.
 
         Parameters
         ----------
         source : path, ``"builtin:NAME"``, trimesh.Trimesh or (vertices, faces)
+            The source mesh, model units.
         options : VoxelOptions or dict, optional
             How to voxelize (:class:`~sc_fem.lattice.options.VoxelOptions`).
         fix : str, FixSpec, callable or list, optional
@@ -60,6 +66,11 @@ class Scene:
         **fields
             Fields of :class:`~sc_fem.lattice.options.VoxelOptions` overriding ``options``
             (``resolution``, ``scale``, ``fill``, ``youngs``, ...).
+
+        Returns
+        -------
+        Scene
+            The loaded mesh, its voxelized lattice and the fixed nodes.
         """
         from .geometry.mesh import load_mesh
         from .lattice.voxelize import voxelize
@@ -69,13 +80,30 @@ class Scene:
         return cls.from_model(model, mesh, fix=fix, fix_vertices=fix_vertices)
 
     @classmethod
-    def from_model(cls, model: CubeModel, mesh: Any = None, *, fix=None, fix_vertices=None) -> "Scene":
+    def from_model(cls, model: CubeModel, mesh: Any = None, *, fix: Iterable[Fix] | Fix | None = None,
+                   fix_vertices: ArrayLike | None = None) -> "Scene":
         """A scene around an existing lattice.
 
         ``mesh`` (optional; needed by ``fix_vertices``) is anything :func:`sc_fem.load_mesh`
         accepts, or an ``(n, 3)`` array of points of interest (any number, even one).
+
+        Parameters
+        ----------
+        model : CubeModel
+            The cube lattice.
+        mesh : path, ``"builtin:NAME"``, trimesh.Trimesh, (vertices, faces) or ndarray, shape (n, 3), optional
+            The source mesh or points of interest, model units.
+        fix : str, FixSpec, callable or list, optional
+            Fixed nodes (:func:`sc_fem.fixed_nodes`); ``"default"`` = a built-in's supports.
+        fix_vertices : array_like of int, optional
+            Source vertices whose cubes are fixed (needs ``mesh``).
+
+        Returns
+        -------
+        Scene
+            ``model`` with ``mesh`` and the fixed nodes.
         """
-        from .fem.boundary import fixed_nodes
+        from .lattice.boundary import fixed_nodes
         from .geometry.models import expand_fix
 
         if not isinstance(model, CubeModel):
@@ -129,7 +157,7 @@ class Scene:
         return str(meta.get("sha256", self.model.info.get("sha256", "")))
 
     @cached_property
-    def embedding(self):
+    def embedding(self) -> Embedding:
         """Where the source vertices sit in the lattice (:class:`~sc_fem.Embedding`)."""
         from .lattice.embed import embedding
 
@@ -141,9 +169,20 @@ class Scene:
         return self.embedding.W
 
     # ------------------------------------------------------------------ maps
-    def vertex_displacements(self, u) -> np.ndarray:
+    def vertex_displacements(self, u: ArrayLike) -> np.ndarray:
         """Displacements of the source vertices, model units, from node displacements ``u`` in
-        metres: shape (m, 3) -> (n, 3), or a stack (k, m, 3) -> (k, n, 3)."""
+        metres: shape (m, 3) -> (n, 3), or a stack (k, m, 3) -> (k, n, 3).
+
+        Parameters
+        ----------
+        u : array_like, shape (m, 3) or (k, m, 3)
+            Node displacements, m.
+
+        Returns
+        -------
+        ndarray, shape (n, 3) or (k, n, 3)
+            Vertex displacements ``W u / scale``, model units.
+        """
         u = np.asarray(u, dtype=float)
         m = self.model.n_nodes
         if u.shape[-2:] != (m, 3) or u.ndim not in (2, 3):
@@ -154,15 +193,37 @@ class Scene:
         out = np.asarray(self.W @ flat).reshape(-1, u.shape[0], 3)
         return out.transpose(1, 0, 2) / self.model.scale
 
-    def vertex_positions(self, u) -> np.ndarray:
+    def vertex_positions(self, u: ArrayLike) -> np.ndarray:
         """Positions of the source vertices (model units) for node displacements ``u`` (m):
-        ``rest + W u / scale``; shapes as in :meth:`vertex_displacements`."""
+        ``rest + W u / scale``; shapes as in :meth:`vertex_displacements`.
+
+        Parameters
+        ----------
+        u : array_like, shape (m, 3) or (k, m, 3)
+            Node displacements, m.
+
+        Returns
+        -------
+        ndarray, shape (n, 3) or (k, n, 3)
+            Deformed vertex positions, model units.
+        """
         return self.rest_vertices + self.vertex_displacements(u)
 
-    def forces_to_nodes(self, f) -> np.ndarray:
+    def forces_to_nodes(self, f: ArrayLike) -> np.ndarray:
         """Forces on the source vertices (n, 3), N, to the lattice nodes (m, 3): ``W^T f``, the
         transpose of ``W`` (node displacements in metres -> vertex displacements in metres), so
-        the work done is the same. (:meth:`vertex_displacements` returns model units, ``W u / scale``.)"""
+        the work done is the same. (:meth:`vertex_displacements` returns model units, ``W u / scale``.)
+
+        Parameters
+        ----------
+        f : array_like, shape (n, 3)
+            Forces on the source vertices, N.
+
+        Returns
+        -------
+        ndarray, shape (m, 3)
+            Equivalent forces on the lattice nodes, N.
+        """
         f = np.asarray(f, dtype=float)
         n = self.W.shape[0]
         if f.shape != (n, 3):
@@ -172,16 +233,30 @@ class Scene:
     @property
     def fixed_dofs(self) -> np.ndarray:
         """Fixed degrees of freedom (3 per fixed node)."""
-        from .fem.boundary import fixed_dofs
+        from .lattice.boundary import fixed_dofs
 
         return fixed_dofs(self.fixed_nodes)
 
     def fix_record(self) -> dict:
-        """What was fixed, for the records of output files."""
+        """What was fixed, for the records of output files.
+
+        Returns
+        -------
+        dict
+            ``"specs"`` (list of str), ``"vertices"`` (number of fixed source vertices) and
+            ``"n_nodes"`` (number of fixed lattice nodes).
+        """
         return {"specs": list(self.fix), "vertices": self.n_fix_vertices, "n_nodes": int(len(self.fixed_nodes))}
 
     def material_record(self) -> dict:
-        """The material of the cubes (ranges over cubes) and the total mass, for file records."""
+        """The material of the cubes (ranges over cubes) and the total mass, for file records.
+
+        Returns
+        -------
+        dict
+            ``"name"``; ``"youngs"`` (Pa), ``"poisson"`` and ``"density"`` (kg/m^3) as
+            ``[min, max]`` over the cubes; ``"mass"``, the total in kg.
+        """
         m = self.model
         return {"name": str(m.info.get("material", "")),
                 "youngs": [float(m.youngs.min()), float(m.youngs.max())],

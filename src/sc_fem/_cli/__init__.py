@@ -1,1 +1,1 @@
-"""The ``sc-fem`` command line (one ``cmd_*.py`` module per command, found automatically)."""
+"""The ``sc-fem`` command line: :data:`.main.COMMANDS` lists its command modules."""

@@ -3,20 +3,21 @@ page that plays the modes in real time)."""
 
 from __future__ import annotations
 
-from .common import add_up_arg
+from ..errors import InputError
+from .common import add_quiet, add_up_arg, command, finish
 
 
 def register(sub) -> None:
-    p = sub.add_parser("export", help="write modes or an animation as glTF 2.0 (.glb/.gltf): modes as morph targets",
-                       description="Write a mode file as glTF 2.0, +Y up (the model's --up axis turned onto it) and in "
-                                   "metres, with a dielectric double-sided material and vertex normals: the source "
-                                   "mesh with two morph targets per mode, +mode and -mode, so every weight is in "
-                                   "[0, 1] (weight 1 = --amplitude of the model's size; normal deltas on every target; "
-                                   "the scales, frequencies, damping and which target is which in "
-                                   "meshes[0].extras.sc_fem), optionally a baked playback (--impulse or --mode) as a "
-                                   "weights animation. An animation file (sc-fem simulate .npz) is written as one "
-                                   "morph target per frame with a weights channel. A mode file stores no UVs: give "
-                                   "the source mesh with --mesh to keep its UVs.")
+    p = command(sub, "export", run_export, outputs=(".glb", ".gltf", ".vtu"),
+                help="write modes or an animation as glTF 2.0 (.glb/.gltf): modes as morph targets",
+                description="Write a mode file as glTF 2.0, +Y up (the model's --up axis turned onto it) and in "
+                            "metres, with a dielectric double-sided material and vertex normals: the source mesh "
+                            "with two morph targets per mode, +mode and -mode, so every weight is in [0, 1] (weight "
+                            "1 = --amplitude of the model's size; normal deltas on every target; the scales, "
+                            "frequencies, damping and which target is which in meshes[0].extras.sc_fem), optionally "
+                            "a baked playback (--impulse or --mode) as a weights animation. An animation file "
+                            "(sc-fem simulate .npz) is written as one morph target per frame with a weights channel. "
+                            "A mode file stores no UVs: give the source mesh with --mesh to keep its UVs.")
     p.add_argument("source", metavar="FILE", help="mode file or animation file (.npz)")
     p.add_argument("-o", "--output", required=True,
                    help="output .glb (or .gltf); .vtu: the mode shapes for ParaView (one point array per mode)")
@@ -33,56 +34,29 @@ def register(sub) -> None:
     p.add_argument("--mesh", metavar="MESH", default=None,
                    help="the source mesh the file was computed from (same vertices): its UVs become TEXCOORD_0 "
                         "and its file normals, if any, NORMAL")
-    p.add_argument("--quiet", "-q", action="store_true", help="print only errors")
-    p.set_defaults(func=run_export)
+    add_quiet(p)
 
-    v = sub.add_parser("view", help="write a self-contained HTML page that plays a mode file in the browser",
-                       description="Write one HTML page (three.js and the modes inlined; no network needed) with "
-                                   "per-mode sliders, click-to-strike (the exact damped modal response), the "
-                                   "frequency table and the time scale. Open it in any browser.")
+    v = command(sub, "view", run_view, outputs=(".html", ".htm"),
+                help="write a self-contained HTML page that plays a mode file in the browser",
+                description="Write one HTML page (three.js and the modes inlined; no network needed) with "
+                            "per-mode sliders, click-to-strike (the exact damped modal response), the "
+                            "frequency table and the time scale. Open it in any browser.")
     v.add_argument("modes", metavar="MODES", help="mode file (.npz) from precompute-modes")
     v.add_argument("-o", "--output", required=True, help="output .html")
     v.add_argument("--amplitude", type=float, default=0.05, help="weight 1 as a fraction of the model's size (0.05)")
     add_up_arg(v)
-    v.add_argument("--quiet", "-q", action="store_true", help="print only errors")
-    v.set_defaults(func=run_view)
+    add_quiet(v)
 
 
 def run_export(args) -> int:
-    import sys
+    from ..io.export import export_to_file
 
-    from ..errors import InputError
-    from ..io.gltf import _load, alias_warning, export_gltf, moving_modes
-
-    impulse = None
-    if args.impulse is not None:
-        if not float(args.impulse[0]).is_integer():
-            raise InputError(f"--impulse VERTEX must be an integer vertex index, got {args.impulse[0]:g}")
-        impulse = (int(args.impulse[0]), args.impulse[1:])
-    source = _load(args.source)
-    if str(args.output).lower().endswith(".vtu"):          # ParaView: one point array per mode
-        from ..io.modes import save_modes_vtu
-        from ..modes.modal import ModalBasis
-
-        if not isinstance(source, ModalBasis):
-            raise InputError(f"{args.source}: only a mode file can be written as .vtu (an animation: "
-                             "sc-fem simulate -o run.xdmf)")
-        if impulse is not None or args.mode is not None:
-            raise InputError(".vtu holds the mode shapes; --impulse/--mode bake a playback, which is glTF's")
-        path = save_modes_vtu(source, args.output)
-        if not args.quiet:
-            print(f"wrote {path} ({path.stat().st_size / 1024:.0f} KiB): point arrays mode_K, field data "
-                  f"frequency_Hz, damping_ratio")
-        return 0
-    path = export_gltf(source, args.output, amplitude=args.amplitude, impulse=impulse, mode=args.mode,
-                       duration=args.duration, fps=args.fps, up=args.up, mesh=args.mesh)
-    if impulse is not None or args.mode is not None:        # the rule and words of sc-fem play
-        warning = alias_warning(source.frequencies, args.fps, moving_modes(source, impulse=impulse, mode=args.mode))
-        if warning:
-            print(f"sc-fem export: warning: {warning}", file=sys.stderr)
-    if not args.quiet:
-        print(f"wrote {path} ({path.stat().st_size / 1024:.0f} KiB)")
-    return 0
+    if args.impulse is not None and not float(args.impulse[0]).is_integer():
+        raise InputError(f"--impulse VERTEX must be an integer vertex index, got {args.impulse[0]:g}")
+    impulse = None if args.impulse is None else (int(args.impulse[0]), args.impulse[1:])
+    return finish(args, export_to_file(args.source, args.output, amplitude=args.amplitude, impulse=impulse,
+                                       mode=args.mode, duration=args.duration, fps=args.fps, up=args.up,
+                                       mesh=args.mesh))
 
 
 def run_view(args) -> int:

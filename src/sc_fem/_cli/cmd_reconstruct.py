@@ -10,7 +10,7 @@ curves are extracted from the mesh (:func:`sc_fem.reconstruct.extract_curves`: `
 lines of ``--points`` vertices along the rest principal axis), and the mesh is rebuilt from the
 reconstructed curves with an inverse-distance map (:func:`sc_fem.reconstruct.curve_mesh_map`).
 The job is :func:`sc_fem.reconstruct.pipeline.reconstruct_animation`; the file is read back with
-:func:`sc_fem.reconstruct.pipeline.load_reconstruction`.
+:func:`sc_fem.io.reconstruction.load_reconstruction`.
 
 Exit status: 0 when the PDE fit is acceptable; 1 when it failed -- an error that is not finite,
 a mean E_A above 0.02 or a max E_M above 0.2 (fractions of the curves' diameter), or a mean E_A
@@ -22,18 +22,15 @@ reasons; 2 for bad input.
 from __future__ import annotations
 
 import argparse
-import sys
-from dataclasses import replace
-
-import numpy as np
 
 from ..errors import InputError
+from .common import command, finish
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "reconstruct", help="PDE-based dynamic reconstruction of an animation from a few frames",
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = command(subparsers, "reconstruct", run, outputs=(".npz",), description=__doc__,
+                help="PDE-based dynamic reconstruction of an animation from a few frames",
+                formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("animation", help="vertex animation .npz (as written by sc-fem simulate)")
     p.add_argument("--fit-frames", default="0,2,4,6,8,10",
                    help="comma-separated frame indices to fit (default 0,2,4,6,8,10)")
@@ -59,51 +56,27 @@ def register(subparsers) -> None:
                    help="stored: the file's curves; lattice: the cube lattice's node lines that sc-fem simulate "
                         "stores (mapped back to the mesh exactly, the most accurate mesh; bar-like lattices); "
                         "mesh: curves of mesh vertices; auto (default): stored if the file has curves, else mesh")
-    p.set_defaults(func=run)
-
-
-def parse_frames(text: str, n_frames: int) -> np.ndarray:
-    """``"0,2,4"`` -> array of >= 2 strictly increasing frame indices inside the animation."""
-    from ..reconstruct.pde import check_frame_indices
-
-    try:
-        idx = np.array([int(v) for v in str(text).split(",") if v.strip() != ""], dtype=int)
-    except ValueError:
-        raise InputError(f"--fit-frames must be comma-separated integers, got {text!r}") from None
-    return check_frame_indices(idx, n_frames, name="--fit-frames")
 
 
 def _segments(text: str):
-    if str(text).strip().lower() == "auto":
-        return "auto"
     try:
-        n = int(text)
+        n = "auto" if str(text).strip().lower() == "auto" else int(text)
     except ValueError:
         raise InputError(f"--segments must be a positive integer or 'auto', got {text!r}") from None
-    if n < 1:
+    if n != "auto" and n < 1:
         raise InputError(f"--segments must be >= 1, got {n}")
     return n
 
 
 def run(args) -> int:
-    from .._atomic import atomic_path
-    from ..io.animation import load_animation
-    from ..reconstruct.pipeline import markdown_report, reconstruct_animation, save_reconstruction
+    from ..io.reconstruction import reconstruct_to_file
 
-    anim = load_animation(args.animation)
-    result = reconstruct_animation(
-        anim, parse_frames(args.fit_frames, anim.n_frames), n_curves=args.curves, n_points=args.points, r=args.r,
-        alpha=args.alpha, parametrization=args.parametrization, criterion=args.criterion,
-        rigid_interpolation=args.rigid_interpolation, remove_rigid=not args.no_rigid, n_control=args.n_control,
-        offset=args.offset, segments=_segments(args.segments), curves_from=args.curves_from)
-    result = replace(result, meta={**result.meta, "animation": str(args.animation)})   # "source": the mesh
-    save_reconstruction(args.output, result)
-    if args.report:
-        with atomic_path(args.report) as tmp:
-            tmp.write_text(markdown_report(result))
-    print(f"{result.summary()}; wrote {args.output}")
-    if result.failures:
-        print(f"sc-fem reconstruct: error: the PDE fit failed: {'; '.join(result.failures)} (the output was written "
-              "for inspection)", file=sys.stderr)
-        return 1
-    return 0
+    try:
+        frames = [int(v) for v in str(args.fit_frames).split(",") if v.strip() != ""]
+    except ValueError:
+        raise InputError(f"--fit-frames must be comma-separated integers, got {args.fit_frames!r}") from None
+    same = ("r", "alpha", "parametrization", "criterion", "rigid_interpolation", "n_control", "offset", "curves_from")
+    return finish(args, reconstruct_to_file(
+        args.animation, args.output, frames, report=args.report, frames_name="--fit-frames", n_curves=args.curves,
+        n_points=args.points, remove_rigid=not args.no_rigid, segments=_segments(args.segments),
+        **{k: getattr(args, k) for k in same}))

@@ -1,33 +1,46 @@
-"""Options shared by several commands (mesh, grid, material), so every command spells them alike."""
+"""Options shared by several commands (mesh, grid, material, fix, up, element), so every command
+spells them alike; :func:`command` declares a command and :func:`finish` prints what its job says."""
 
 from __future__ import annotations
 
 import argparse
 import sys
-import time
-from contextlib import contextmanager
 
-import numpy as np
+
+def command(sub, name: str, run, *, outputs: tuple = (), folder: bool = False, **kw) -> argparse.ArgumentParser:
+    """Add the command ``name`` running ``run(args) -> int``; ``outputs``: the extensions its ``-o``
+    takes, ``folder``: whether it takes a folder (main checks both, probing the location, first)."""
+    p = sub.add_parser(name, **kw)
+    p.set_defaults(func=run, outputs=(tuple(outputs), folder))
+    return p
+
+
+def add_quiet(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--quiet", "-q", action="store_true", help="print only errors")
+
+
+def finish(args, res) -> int:
+    """Print a job's summary (unless ``--quiet``) and its error line; the exit status (1: not ok)."""
+    if res.summary() and not getattr(args, "quiet", False):
+        print(res.summary())
+    if res.error:
+        print(f"sc-fem {args.command}: error: {res.error}", file=sys.stderr)
+    return 0 if res.ok else 1
 
 
 def add_mesh_arg(p: argparse.ArgumentParser, *, many: bool = False) -> None:
     """The positional MESH (``many``: one or more, glob patterns allowed)."""
-    if many:
-        p.add_argument("mesh", metavar="MESH", nargs="+",
-                       help="mesh file(s) (OBJ, STL, PLY, OFF, glTF, VTK/VTU, ...), glob patterns or "
-                            "builtin:NAME (chair, bridge, rope, beam)")
-    else:
-        p.add_argument("mesh", metavar="MESH",
-                       help="mesh file (OBJ, STL, PLY, OFF, glTF, VTK/VTU, ...) or builtin:NAME "
-                            "(chair, bridge, rope, beam)")
+    files = "mesh file(s) (OBJ, STL, PLY, OFF, glTF, VTK/VTU, ...), glob patterns" if many else \
+        "mesh file (OBJ, STL, PLY, OFF, glTF, VTK/VTU, ...)"
+    p.add_argument("mesh", metavar="MESH", nargs="+" if many else None,
+                   help=f"{files} or builtin:NAME (chair, bridge, rope, beam)")
 
 
 def add_grid_args(p: argparse.ArgumentParser, *, auto: bool = False) -> None:
     """Grid, fill, stiffness, occupancy, bodies and ``--keep`` options (``auto``: ``--resolution``
     also takes ``auto``)."""
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--resolution", "-r", default=None,
-                   type=(str if auto else int),
+    g.add_argument("--resolution", "-r", default=None, type=(str if auto else int),
                    help="cubes along the longest bounding-box axis (default 32)"
                         + ("; 'auto' picks the coarsest grid whose frequencies have converged" if auto else ""))
     g.add_argument("--pitch", type=float, default=None, help="cube edge in model units")
@@ -71,68 +84,10 @@ def voxel_options(args):
     from ..modes.options import AutoResolution, parse_resolution
 
     res = parse_resolution(getattr(args, "resolution", None))      # a bad value is an error here
-    return VoxelOptions(resolution=None if isinstance(res, AutoResolution) else res, pitch=args.pitch, scale=args.scale, fill=args.fill, occupancy=args.occupancy,
-                        keep=args.keep, topology=args.topology, weld=args.weld,
-                        shell_thickness=args.shell_thickness, stiffness=args.stiffness,
-                        youngs=args.youngs, poisson=args.poisson, density=args.density, mass=args.mass)
-
-
-def voxelize_from_args(args, mesh=None):
-    """Run :func:`sc_fem.voxelize` with the grid/material options of ``args``."""
-    from ..lattice.voxelize import voxelize
-
-    return voxelize(mesh if mesh is not None else args.mesh, voxel_options(args))
-
-
-def scene_from_args(args, mesh=None):
-    """A :class:`sc_fem.Scene` from the mesh, grid, material and fix options of ``args``."""
-    from ..fem.boundary import read_vertex_file
-    from ..scene import Scene
-
-    fix_vertices = read_vertex_file(args.fix_vertices) if getattr(args, "fix_vertices", None) else None
-    return Scene.from_mesh(mesh if mesh is not None else args.mesh, voxel_options(args),
-                           fix=list(getattr(args, "fix", []) or []) or None, fix_vertices=fix_vertices)
-
-
-def _bodies_line(model) -> str:
-    info = model.info
-    if info.get("topology") != "pieces":
-        return f"{model.n_components} (topology {info.get('topology', 'grid')}: cubes glue what they share)"
-    shared = int(np.sum(np.diff(np.ravel_multi_index(model.cells.T, model.dims)) == 0))
-    return (f"{model.n_components} kept of {info.get('bodies', 1)} (weld {info.get('weld', 0):.4g} model units: "
-            f"{info.get('welds_by_distance', 0)} part pairs welded by distance, "
-            f"{info.get('welds_by_containment', 0)} by nesting; {info.get('loose_bodies', 0)} loose; "
-            f"{shared} cells hold cubes of two bodies)")
-
-
-def model_summary(model) -> str:
-    info = model.info
-    rows = [
-        ("source", info.get("source", "")),
-        ("grid", " x ".join(str(int(d)) for d in model.dims) + f"  (pitch {model.pitch:.4g} model units, h {model.h:.4g} m)"),
-        ("cubes / nodes / DOFs", f"{model.n_cubes:,} / {model.n_nodes:,} / {model.n_dofs:,}"),
-        ("samples", f"{info.get('n_samples', 0):,} ({info.get('sampler', '')}, {info.get('occupancy', '')}, fill {info.get('fill', '')})"),
-        ("bodies", _bodies_line(model)),
-        ("components", f"{info.get('components_found', model.n_components)} found, "
-                       f"{info.get('dropped_cubes', 0)} cubes dropped"),
-        ("size", " x ".join(f"{e:.4g}" for e in model.dims * model.h) + " m (bounding box of the cubes)"),
-        ("mass", f"{model.total_mass:.6g} kg"),
-        ("E", f"{model.youngs.min():.4g} .. {model.youngs.max():.4g} Pa ({info.get('material', '')})"),
-    ]
-    w = max(len(k) for k, _ in rows)
-    return "\n".join(f"  {k:<{w}}  {v}" for k, v in rows)
-
-
-@contextmanager
-def stage(name: str, timings: dict, quiet: bool = False):
-    """Time a stage and print it to stderr."""
-    t0 = time.perf_counter()
-    if not quiet:
-        print(f"[{name}] ...", file=sys.stderr, flush=True)
-    yield
-    timings[name] = time.perf_counter() - t0
-    if not quiet:
-        print(f"[{name}] {timings[name]:.2f} s", file=sys.stderr, flush=True)
+    same = ("pitch", "scale", "fill", "occupancy", "keep", "topology", "weld", "shell_thickness", "stiffness",
+            "youngs", "poisson", "density", "mass")              # VoxelOptions' fields spelled as the options
+    return VoxelOptions(resolution=None if isinstance(res, AutoResolution) else res,
+                        **{k: getattr(args, k) for k in same})
 
 
 def add_fix_args(p: argparse.ArgumentParser) -> None:
@@ -145,6 +100,15 @@ def add_fix_args(p: argparse.ArgumentParser) -> None:
                    help="text file of source-mesh vertex indices (one a line); their cubes' nodes are fixed")
 
 
+def fix_options(args) -> dict:
+    """``fix`` and ``fix_vertices`` (:meth:`sc_fem.Scene.from_mesh`, :func:`sc_fem.modal`) of
+    ``--fix`` and ``--fix-vertices``."""
+    from ..lattice.boundary import read_vertex_file
+
+    return dict(fix=list(args.fix or []) or None,
+                fix_vertices=read_vertex_file(args.fix_vertices) if args.fix_vertices else None)
+
+
 def add_up_arg(p: argparse.ArgumentParser, *, uses: str = "pictures draw it upward") -> None:
     """``--up x|y|z``: the model's up axis, one option and default on every command; ``uses`` says
     what this command does with it (help text)."""
@@ -152,9 +116,14 @@ def add_up_arg(p: argparse.ArgumentParser, *, uses: str = "pictures draw it upwa
                    help=f"the model's up axis (default z; many OBJ/glTF models are y-up): {uses}")
 
 
-def add_element_arg(p: argparse.ArgumentParser) -> None:
-    """``--element`` with the element types of :data:`sc_fem.fem.elements.ELEMENTS`."""
+def add_element_arg(p: argparse.ArgumentParser, *, higher_order: bool = False) -> None:
+    """``--element``: the cube elements of :data:`sc_fem.fem.elements.ELEMENTS`, and with
+    ``higher_order`` the degree-2 and 3 cubes of :mod:`sc_fem.fem.highorder` (linear analyses)."""
     from ..fem.elements import DEFAULT_ELEMENT, ELEMENTS
+    from ..fem.highorder import DEGREES
 
-    p.add_argument("--element", choices=ELEMENTS, default=DEFAULT_ELEMENT,
-                   help=f"element type: {', '.join(ELEMENTS)} (default {DEFAULT_ELEMENT})")
+    choices = ELEMENTS + (tuple(DEGREES) if higher_order else ())
+    extra = ("; q2, q3: degree-2 / 3 fields in every cube, for thin-walled members (slower, far more "
+             "accurate in torsion)") if higher_order else ""
+    p.add_argument("--element", choices=choices, default=DEFAULT_ELEMENT,
+                   help=f"element type: {', '.join(choices)} (default {DEFAULT_ELEMENT}){extra}")

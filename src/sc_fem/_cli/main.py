@@ -1,57 +1,39 @@
 """``sc-fem`` entry point: ``main(argv=None) -> int``, testable in-process.
 
-Each module ``sc_fem/_cli/cmd_*.py`` defines ``register(subparsers)``, which adds its
-sub-command(s) and sets ``func=run`` (a callable ``run(args) -> int``) as the parser default.
-"""
+:data:`COMMANDS` lists the command modules; each ``register(subparsers)`` adds its command(s) with
+:func:`.common.command`: a ``run(args) -> int`` (parse, call one library function, print its
+summary) and the outputs it writes, which are checked here before any work."""
 
 from __future__ import annotations
 
 import argparse
-import importlib
-import pkgutil
 import sys
+import warnings
 
 from .. import __version__
+from .._atomic import check_output
 from ..errors import ScFemError, ScFemWarning
+from . import cmd_demo, cmd_export, cmd_modes, cmd_reconstruct, cmd_simulate, cmd_voxelize
+
+COMMANDS = (cmd_demo, cmd_export, cmd_modes, cmd_reconstruct, cmd_simulate, cmd_voxelize)
+"""The command modules, in the order ``sc-fem --help`` lists their commands."""
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="sc-fem",
-        description="Squashing Cubes: turn any graphics mesh into a deformable object "
-                    "(voxelize, FEM, modes, dynamics, XPBD, PDE reconstruction). "
-                    "A MESH is a file path (OBJ, STL, PLY, OFF, glTF, VTK/VTU, ...) or builtin:NAME "
-                    "(chair, bridge, rope, beam). Units are SI; geometry options are in model units.",
-    )
+    parser = argparse.ArgumentParser(prog="sc-fem", description=(
+        "Squashing Cubes: turn any graphics mesh into a deformable object (voxelize, FEM, modes, dynamics, XPBD, "
+        "PDE reconstruction). A MESH is a file path (OBJ, STL, PLY, OFF, glTF, VTK/VTU, ...) or builtin:NAME "
+        "(chair, bridge, rope, beam). Units are SI; geometry options are in model units."))
     parser.add_argument("--version", action="version", version=f"sc-fem {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    from . import __path__ as cli_path
-
-    for info in sorted(pkgutil.iter_modules(cli_path), key=lambda m: m.name):
-        if info.name.startswith("cmd_"):
-            importlib.import_module(f"{__package__}.{info.name}").register(sub)
+    for module in COMMANDS:
+        module.register(sub)
     return parser
 
 
-OUTPUTS: dict[str, tuple[tuple[str, ...], bool]] = {
-    "voxelize": ((".png", ".npz", ".vtu"), False),
-    "precompute-modes": ((".npz",), True),
-    "play": ((".mp4", ".gif"), True),
-    "modes-sheet": ((".png",), False),
-    "simulate": ((".npz", ".xdmf", ".mp4", ".gif"), False),
-    "reconstruct": ((".npz",), False),
-    "demo": ((), True),
-    "export": ((".glb", ".gltf", ".vtu"), False),
-    "view": ((".html", ".htm"), False),
-}
-"""Per command: the output extensions it writes and whether a folder is accepted; checked (and the
-output location probed for writing) before any work starts."""
-
-
 def _check_outputs(args) -> None:
-    from .._atomic import check_output
-
-    suffixes, folder = OUTPUTS.get(args.command, ((), True))
+    """Before any work: the output's extension (or a folder) and ``--report``, and that they can be written."""
+    suffixes, folder = getattr(args, "outputs", ((), True))
     if getattr(args, "output", None):
         check_output(args.output, suffixes=suffixes, folder=folder)
     if getattr(args, "report", None):
@@ -65,24 +47,17 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    import warnings
-
-    def show(message, category, *rest, **kw):      # one line, no source excerpt
-        print(f"sc-fem {args.command}: warning: {message}", file=sys.stderr)
-
     try:
         _check_outputs(args)
         with warnings.catch_warnings():
-            warnings.simplefilter("always", ScFemWarning)
-            warnings.showwarning = show
+            warnings.simplefilter("always", ScFemWarning)              # each as one line, no source excerpt
+            warnings.showwarning = lambda m, *a, **k: print(f"sc-fem {args.command}: warning: {m}", file=sys.stderr)
             return int(args.func(args) or 0)
     except ScFemError as exc:
         print(f"sc-fem {args.command}: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"sc-fem {args.command}: interrupted; no output was written", file=sys.stderr)
+    except KeyboardInterrupt as stop:              # a batch says which of its mode files were completed
+        said = getattr(stop, "outcome", "no output was written")
+        print(f"sc-fem {args.command}: interrupted; {said}", file=sys.stderr)
         return 130
 
-
-if __name__ == "__main__":  # pragma: no cover
-    raise SystemExit(main())

@@ -6,16 +6,17 @@ from .._lazy import lazy_getattr
 from .rope_scene import rope_scene  # bound eagerly: it shares its module's name
 
 _NAMES = {
-    "State": ".driver", "METHODS": ".driver", "make_integrator": ".driver", "simulate": ".driver",
+    "State": ".state", "METHODS": ".driver", "make_integrator": ".driver", "simulate": ".driver",
     "record": ".driver", "Recording": ".driver",
-    "Energy": ".base", "TimeIntegrator": ".base",
+    "Energy": ".state", "TimeIntegrator": ".base", "AssembledIntegrator": ".base",
+    "critical_time_step": ".base",
     "Newmark": ".newmark", "Corotational": ".corotational",
-    "CentralDifference": ".central", "critical_time_step": ".central",
+    "CentralDifference": ".central", "XPBDIntegrator": ".xpbd_integrator",
     "Gravity": ".loads", "VertexForce": ".loads", "FacePressure": ".loads", "LoadSet": ".loads",
     "half_sine": ".loads",
-    "run_simulation": ".job", "XPBDOptions": ".job", "NewmarkOptions": ".job",
+    "run_simulation": ".job", "XPBDOptions": ".xpbd", "NewmarkOptions": ".newmark",
     "Contact": ".contact", "Ground": ".contact", "Sphere": ".contact", "Box": ".contact",
-    "IPC": ".ipc", "BarrierContact": ".ipc", "impulse_nodes": ".loads",
+    "IPC": ".ipc", "BarrierContact": ".barrier", "impulse_nodes": ".loads",
     "XPBDSolver": ".xpbd", "XPBDState": ".xpbd", "simulate_xpbd": ".xpbd",
     "RopeScene": ".rope_scene",
 }

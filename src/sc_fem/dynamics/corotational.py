@@ -6,7 +6,8 @@ instead of turning. The corotational model (Mueller et al. 2002/2004, Felippa 20
 cube's rotation before measuring the strain:
 
 * per cube, the deformation gradient at the cube centre ``F = sum_a x_a (x) grad N_a`` (current
-  corner positions ``x_a`` in metres) and its rotation ``R = polar(F)`` (:func:`polar_rotation`:
+  corner positions ``x_a`` in metres) and its rotation ``R = polar(F)``
+  (:func:`~sc_fem.dynamics.kinematics.polar_rotation`:
   Newton's iteration, SVD fallback, ``det R = +1``), vectorized over cubes;
 * elastic force ``f_e = R K_e (R^T x_e - X_e)`` (``X_e`` rest corners), zero for any rigid motion;
 * warped stiffness ``K_e' = R K_e R^T`` (the rotation held fixed), assembled with
@@ -48,12 +49,16 @@ how to reproduce it: ``docs/corotational.md``.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
+import scipy.sparse as sp
 
 from ..fem.elements import DEFAULT_ELEMENT, cube_stiffness
-from ..fem.linsolve import factorize
+from ..fem.linsolve import Factorization, factorize
 from ..errors import InputError
-from ..lattice.cubes import HEX_CORNERS, CubeModel
+from ..lattice.cubes import CubeModel
+from .kinematics import cube_rotations
 from .newmark import Newmark
 
 CONTRACTION = 0.5
@@ -76,64 +81,6 @@ NEWTON_RTOL = 1e-8
 
 _EXTRAPOLATED, _LINEARISED, _NEWTON = 0, 1, 2          # how a step's iteration started / continues
 
-DN_CENTRE = (2.0 * HEX_CORNERS - 1.0) / 4.0   # grad N_a at the centre of the unit cube, (8, 3)
-_P1, _P2 = np.array([1, 2, 0]), np.array([2, 0, 1])    # cyclic index shifts for cofactors
-
-
-def centre_F(X: np.ndarray, h: float) -> np.ndarray:
-    """Deformation gradient at the cube centre (= cube mean) ``F = sum_a x_a (x) grad N_a``.
-
-    Parameters
-    ----------
-    X : ndarray, shape (n, 8, 3)
-        Corner positions, metres, in :data:`~sc_fem.lattice.cubes.HEX_CORNERS` order.
-    h : float
-        Rest edge, metres.
-
-    Returns
-    -------
-    ndarray, shape (n, 3, 3)
-        ``F`` (dimensionless), ``F[n, j, k] = d x_j / d X_k``.
-    """
-    return np.matmul(X.transpose(0, 2, 1), DN_CENTRE) * (1.0 / h)
-
-
-def cofactor(F: np.ndarray) -> np.ndarray:
-    """Cofactor matrices ``det(F) F^-T`` of a batch (n, 3, 3) (also for singular ``F``)."""
-    return (F[:, _P1[:, None], _P1] * F[:, _P2[:, None], _P2]
-            - F[:, _P1[:, None], _P2] * F[:, _P2[:, None], _P1])
-
-
-def polar_rotation(F: np.ndarray, iterations: int = 5) -> np.ndarray:
-    """Rotation ``R`` of the polar decomposition ``F = R U`` of a batch, shape (n, 3, 3).
-
-    Newton's iteration ``X <- (X + X^-T) / 2`` from ``X = F`` (quadratic convergence; 5
-    iterations reach round-off for strains below ~30 %); matrices with ``det F <= 0`` or that
-    did not converge fall back to the SVD ``F = U S V^T``, ``R = U diag(1, 1, det(U V^T)) V^T``
-    (the closest proper rotation). ``det R = +1`` always."""
-    X = F
-    prev = F
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        for _ in range(iterations):
-            C = cofactor(X)
-            d = np.einsum("nj,nj->n", X[:, 0], C[:, 0])
-            prev, X = X, 0.5 * (X + C / d[:, None, None])
-        bad = ~(np.einsum("nij,nij->n", X - prev, X - prev) < 1e-20)
-        bad |= ~(np.linalg.det(F) > 0)
-    if np.any(bad):
-        Fb = np.where(np.isfinite(F[bad]), F[bad], 0.0)
-        U, _, Vt = np.linalg.svd(Fb)
-        s = np.sign(np.linalg.det(np.matmul(U, Vt)))
-        U[:, :, 2] *= np.where(s == 0, 1.0, s)[:, None]
-        X = X.copy()
-        X[bad] = np.matmul(U, Vt)
-    return X
-
-
-def cube_rotations(x_e: np.ndarray, h: float) -> np.ndarray:
-    """Per-cube rotations from corner positions ``x_e`` (n, 8, 3) m of cubes of edge ``h`` m: (n, 3, 3)."""
-    return polar_rotation(centre_F(x_e, h))
-
 
 class Corotational(Newmark):
     """Newmark/HHT integration of the corotational cube lattice.
@@ -143,6 +90,9 @@ class Corotational(Newmark):
 
     Parameters
     ----------
+    model : CubeModel
+    dt : float
+        Time step, s.
     iterations : int
         Frozen-tangent passes per step (default 3); the linearised pass that starts the first step
         (or a state set from outside) is one of them, and a step that stalls gets more (see the
@@ -160,7 +110,8 @@ class Corotational(Newmark):
 
     name = "corotational"
 
-    def __init__(self, model, dt, *, iterations: int = 3, max_cg: int = 8, cg_rtol: float = 1e-10, **kw) -> None:
+    def __init__(self, model: CubeModel, dt: float, *, iterations: int = 3, max_cg: int = 8, cg_rtol: float = 1e-10,
+                 **kw: Any) -> None:
         if not isinstance(model, CubeModel):
             raise InputError(f"model must be a CubeModel, got {type(model).__name__}")
         self.iterations = max(1, int(iterations))
@@ -210,7 +161,18 @@ class Corotational(Newmark):
         return np.einsum("nij,nj->ni", self._Ke, loc)
 
     def internal_force(self, u: np.ndarray) -> np.ndarray:
-        """``sum_e R K_e (R^T x_e - X_e)`` on the free DOFs, N."""
+        """Corotational elastic force ``sum_e R K_e (R^T x_e - X_e)`` on the free DOFs.
+
+        Parameters
+        ----------
+        u : ndarray, shape (n_free,)
+            Displacement, m.
+
+        Returns
+        -------
+        ndarray, shape (n_free,)
+            Elastic force, N.
+        """
         loc, R = self._local(u)
         fl = self._Kl(loc).reshape(-1, 8, 3)
         fe = np.einsum("nij,naj->nai", R, fl)                     # (n, 8, 3)
@@ -220,20 +182,56 @@ class Corotational(Newmark):
         return self.asm.restrict(f)
 
     def elastic_energy(self, u: np.ndarray) -> float:
+        """Strain energy ``sum_e 1/2 (R^T x_e - X_e) . K_e (R^T x_e - X_e)`` (zero for rigid motion).
+
+        Parameters
+        ----------
+        u : ndarray, shape (n_free,)
+            Displacement, m.
+
+        Returns
+        -------
+        float
+            Strain energy, J.
+        """
         loc, _ = self._local(u)
         return 0.5 * float(np.einsum("ni,ni->", loc, self._Kl(loc)))
 
     def warped_matrices(self, R: np.ndarray) -> np.ndarray:
-        """Element matrices ``R K_e R^T`` (n, 24, 24), N/m, for per-cube rotations ``R`` (n, 3, 3).
+        """Warped element matrices ``R K_e R^T`` of all cubes.
 
         ``R`` acts block-diagonally on the 8 corners: with ``K_e`` viewed as (8, 3, 8, 3),
-        ``out[a, i, b, j] = R_ik K[a, k, b, l] R_jl`` -- two batched 3x3 products."""
+        ``out[a, i, b, j] = R_ik K[a, k, b, l] R_jl`` -- two batched 3x3 products.
+
+        Parameters
+        ----------
+        R : ndarray, shape (n_cubes, 3, 3)
+            Rotation of each cube.
+
+        Returns
+        -------
+        ndarray, shape (n_cubes, 24, 24)
+            Element matrices, N/m.
+        """
         n = len(R)
         left = np.matmul(R[:, None], self._Ke.reshape(n, 8, 3, 24))          # R K, (n, 8, 3, 24)
         out = np.matmul(left.reshape(n, 24, 8, 3), np.swapaxes(R, 1, 2)[:, None])   # (R K) R^T
         return out.reshape(n, 24, 24)
 
-    def tangent(self, u: np.ndarray):
+    def tangent(self, u: np.ndarray) -> sp.spmatrix:
+        """Warped stiffness ``K'(u) = sum_e R K_e R^T`` (the rotations of ``u`` held fixed); the last
+        one is kept.
+
+        Parameters
+        ----------
+        u : ndarray, shape (n_free,)
+            Displacement, m.
+
+        Returns
+        -------
+        scipy.sparse matrix, shape (n_free, n_free)
+            Tangent stiffness, N/m.
+        """
         if self._cache_u is not None and self._cache_u[0] is u:
             return self._cache_u[1]
         _, R = self._corners(u)
@@ -241,10 +239,21 @@ class Corotational(Newmark):
         self._cache_u = (u, Kt)
         return Kt
 
-    def effective_solver(self, u: np.ndarray):
+    def effective_solver(self, u: np.ndarray) -> Factorization | _LaggedFactor:
         """Solver of this step's ``S(u)``: conjugate gradients preconditioned by the factorization of
         an earlier step's ``S`` (the rotations change little from step to step), refactorized when
-        CG needs more than ``max_cg`` iterations; ``max_cg=0`` factorizes every step."""
+        CG needs more than ``max_cg`` iterations; ``max_cg=0`` factorizes every step.
+
+        Parameters
+        ----------
+        u : ndarray, shape (n_free,)
+            Displacement whose warped stiffness ``S`` uses, m.
+
+        Returns
+        -------
+        Factorization or _LaggedFactor
+            ``solve(r)``: ``S^-1 r``, residual force (N) to acceleration (m/s^2).
+        """
         S = self._effective(self.tangent(u))
         if self._pre is None or self._stale or self.max_cg == 0:
             self._pre, self._stale = factorize(S, self.backend), False

@@ -1,29 +1,33 @@
 """Time integration of the cube lattice: a common interface, several methods, one driver.
 
-Methods (one module each; all step a :class:`State` and are subclasses of
-:class:`~sc_fem.dynamics.base.TimeIntegrator`):
+Methods (one module each; all step a :class:`~sc_fem.dynamics.state.State` and are subclasses of
+:class:`~sc_fem.dynamics.base.TimeIntegrator`), registered by name in :data:`METHODS`:
 
-==============  ==========================================================================
-``"newmark"``    :class:`~sc_fem.dynamics.newmark.Newmark` -- implicit Newmark-beta
-                 (average acceleration by default; ``gamma > 1/2`` or HHT ``alpha`` for
-                 numerical damping), Rayleigh damping; linear: one factorization, one
-                 back-solve per step.
-``"corotational"`` :class:`~sc_fem.dynamics.corotational.Corotational` -- the same scheme on
-                 the corotational (warped-stiffness) model for large rotations.
-``"central"``    :class:`~sc_fem.dynamics.central.CentralDifference` -- explicit central
-                 differences with lumped mass, stable for ``dt <= dt_crit = 2 / omega_max``.
-``"ipc"``        :class:`~sc_fem.dynamics.ipc.IPC` -- backward Euler as the minimisation of
-                 the incremental potential with barrier contact and friction on the source
-                 mesh (stable at any ``dt``, never interpenetrating); linear backward Euler
-                 (one back-solve) while nothing is within the contact distance.
-==============  ==========================================================================
+==================  ======================================================================
+``"newmark"``       :class:`~sc_fem.dynamics.newmark.Newmark` -- implicit Newmark-beta
+                    (average acceleration by default; ``gamma > 1/2`` or HHT ``alpha`` for
+                    numerical damping), Rayleigh damping; linear: one factorization, one
+                    back-solve per step.
+``"corotational"``  :class:`~sc_fem.dynamics.corotational.Corotational` -- the same scheme on
+                    the corotational (warped-stiffness) model for large rotations.
+``"central"``       :class:`~sc_fem.dynamics.central.CentralDifference` -- explicit central
+                    differences with lumped mass, stable for ``dt <= dt_crit = 2 / omega_max``.
+``"xpbd"``          :class:`~sc_fem.dynamics.xpbd_integrator.XPBDIntegrator` -- XPBD
+                    substeps (:class:`~sc_fem.dynamics.xpbd.XPBDSolver`); gravity and fixed
+                    nodes only.
+``"ipc"``           :class:`~sc_fem.dynamics.ipc.IPC` -- backward Euler as the minimisation of
+                    the incremental potential with barrier contact and friction on the source
+                    mesh (stable at any ``dt``, never interpenetrating); linear backward Euler
+                    (one back-solve) while nothing is within the contact distance.
+==================  ======================================================================
 
-Loads (gravity, forces and pressures on the source mesh) are in :mod:`.loads`, obstacles
-(ground, sphere, box) in :mod:`.contact` (projected after each step) and :mod:`.ipc` (inside
-the step). :func:`simulate` is the driver: a generator of states
-that computes the energy of each, and stops with :class:`~sc_fem.errors.InstabilityError` (naming
-the step and ``dt_crit``) when the run blows up. :func:`record` collects a run into a
-:class:`Recording`.
+Each class declares what it supports (:attr:`~sc_fem.dynamics.base.TimeIntegrator.supports`) and
+its default step (:attr:`~sc_fem.dynamics.base.TimeIntegrator.steps_per_frame`). Loads (gravity,
+forces and pressures on the source mesh) are in :mod:`.loads`, obstacles (ground, sphere, box) in
+:mod:`.contact` (projected after each step) and :mod:`.barrier` (inside the step of :mod:`.ipc`).
+:func:`simulate` is the driver: a generator of states that computes the energy of each, and stops
+with :class:`~sc_fem.errors.InstabilityError` (naming the step and ``dt_crit``) when the run blows
+up. :func:`record` collects a run into a :class:`Recording`.
 
 Units: SI. Displacements ``u`` in metres at the lattice nodes, shape (m, 3).
 """
@@ -34,73 +38,46 @@ import math
 import sys
 import time as _time
 from dataclasses import dataclass, field, replace
-from typing import Iterator
+from typing import Any, Iterator
 
 import numpy as np
 
+from ..errors import InputError, InstabilityError
+from ..lattice.cubes import CubeModel
+from .base import TimeIntegrator
+from .central import CentralDifference
+from .corotational import Corotational
+from .ipc import IPC
+from .newmark import Newmark
+from .state import State
+from .xpbd_integrator import XPBDIntegrator
 
-@dataclass(frozen=True, eq=False)
-class State:
-    """A dynamic state of the lattice.
+METHODS: dict[str, type[TimeIntegrator]] = {cls.name: cls for cls in (Newmark, Corotational, CentralDifference,
+                                                                      XPBDIntegrator, IPC)}
+"""The methods by name: what :func:`make_integrator` (and ``sc-fem simulate --method``) accepts."""
 
-    Attributes
+
+def make_integrator(method: str, model: CubeModel, dt: float, **kw: Any) -> TimeIntegrator:
+    """Build the integrator ``method`` for ``model`` with step ``dt``.
+
+    Parameters
     ----------
-    time : float
-        Seconds.
-    u : ndarray, shape (m, 3)
-        Node displacements, m (zero on fixed nodes).
-    v : ndarray, shape (m, 3)
-        Node velocities, m/s.
-    a : ndarray, shape (m, 3)
-        Node accelerations, m/s^2.
-    step : int
-        Steps taken.
-    energy : float
-        Kinetic + elastic + gravity + contact energy, J (NaN until :func:`simulate` fills it).
-    mechanical : float
-        Kinetic + elastic energy, J (>= 0; NaN until :func:`simulate` fills it).
-    parts : Energy or None
-        The energy by kind (:class:`~sc_fem.dynamics.base.Energy`), filled by :func:`simulate`.
-    work : float
-        Work done by the loads since the start, J (trapezoidal rule; NaN until filled).
+    method : str
+        A key of :data:`METHODS`: ``"newmark"``, ``"corotational"``, ``"central"``, ``"xpbd"``, ``"ipc"``.
+    model : CubeModel
+    dt : float
+        Time step, s.
+    **kw
+        Go to the class (``fixed_nodes``, ``loads``, ``contact``, ``rayleigh``, ``beta``, ``gamma``,
+        ``alpha``, ``element``, ``substeps``, ...).
+
+    Returns
+    -------
+    TimeIntegrator
+        An instance of ``METHODS[method]``.
     """
-
-    time: float
-    u: np.ndarray
-    v: np.ndarray
-    a: np.ndarray
-    step: int = 0
-    energy: float = float("nan")
-    mechanical: float = float("nan")
-    parts: object = None
-    work: float = float("nan")
-
-
-METHODS = ("newmark", "corotational", "central", "xpbd", "ipc")
-"""Method names accepted by :func:`make_integrator` (and ``sc-fem simulate --method``)."""
-
-
-def make_integrator(method: str, model, dt: float, **kw):
-    """Build the integrator ``method`` (one of :data:`METHODS`) for ``model`` with step ``dt`` (s).
-
-    Keyword arguments go to the class (``fixed_nodes``, ``loads``, ``contact``, ``rayleigh``,
-    ``beta``, ``gamma``, ``alpha``, ``element``, ...)."""
-    from ..errors import InputError
-
-    if method == "newmark":
-        from .newmark import Newmark as cls
-    elif method == "corotational":
-        from .corotational import Corotational as cls
-    elif method == "xpbd":
-        from .xpbd_integrator import XPBDIntegrator as cls
-    elif method == "ipc":
-        from .ipc import IPC as cls
-    elif method == "central":
-        from .central import CentralDifference as cls
-        for k in ("beta", "gamma", "alpha", "iterations"):
-            if kw.pop(k, None) is not None:
-                raise InputError(f"method 'central' has no parameter {k!r}")
-    else:
+    cls = METHODS.get(method) if isinstance(method, str) else None
+    if cls is None:
         raise InputError(f"method must be one of {list(METHODS)}, got {method!r}")
     return cls(model, dt, **kw)
 
@@ -111,22 +88,13 @@ def _blowup_message(integ, state_time: float, step: int, why: str) -> str:
         crit = f"dt_crit = {dtc:.4g} s (dt / dt_crit = {integ.dt / dtc:.3g})"
     except Exception as exc:  # noqa: BLE001 - the message must still be raised
         crit = f"dt_crit could not be computed ({exc})"
-    if integ.name == "xpbd":
-        hint = "use more substeps (or constraints='corotational')"
-    elif getattr(integ, "contact", None) is not None:
-        hint = ("this method pushes vertices out of the obstacles after each step, which feeds energy into "
-                "the model: use --method ipc (method='ipc'), which keeps contact inside the step and is stable "
-                "at any dt")
-    elif not integ.implicit:
-        hint = "use dt < dt_crit or an implicit method (--method newmark)"
-    else:
-        hint = "reduce dt or add damping"
+    hint = integ.blowup_hint() if isinstance(integ, TimeIntegrator) else "reduce dt or add damping"
     return (f"{integ.name} blew up at step {step} (t = {state_time:.6g} s, dt = {integ.dt:.4g} s): {why}; "
             f"explicit stability limit {crit}; {hint}. Nothing was written.")
 
 
-def simulate(integrator, n_steps: int, *, every: int = 1, check: bool = True, growth: float = 10.0,
-             progress: bool = False) -> Iterator[State]:
+def simulate(integrator: TimeIntegrator, n_steps: int, *, every: int = 1, check: bool = True,
+             growth: float = 10.0, progress: bool = False) -> Iterator[State]:
     """Run ``integrator`` for ``n_steps`` steps, yielding states with their energy filled in.
 
     Yields the initial state, then every ``every``-th state and always the last one; each with
@@ -140,9 +108,32 @@ def simulate(integrator, n_steps: int, *, every: int = 1, check: bool = True, gr
     ``growth * (T_0 + U_0 + |W_ext| + |V_g|)``, ``V_g`` the gravity potential. A stable run
     satisfies ``T + U <= T_0 + U_0 + W_ext - V_g`` (energy balance), so this only fires on
     runaway growth. With ``check=False`` the energy is evaluated only for the yielded states.
-    """
-    from ..errors import InputError, InstabilityError
 
+    Parameters
+    ----------
+    integrator : TimeIntegrator
+        Stepped in place.
+    n_steps : int
+        Steps of ``integrator.dt`` to take (>= 0).
+    every : int
+        Yield every ``every``-th state (and the last).
+    check : bool
+        Check for blow-up after every step.
+    growth : float
+        Blow-up threshold, a multiple of the initial energy scale (see above).
+    progress : bool
+        Show a progress bar on stderr (needs tqdm).
+
+    Yields
+    ------
+    State
+        With ``energy``, ``mechanical`` (J), ``parts`` and ``work`` (J) filled in.
+
+    Raises
+    ------
+    InstabilityError
+        The run blew up (``check=True``).
+    """
     n_steps = int(n_steps)
     every = max(1, int(every))
     if n_steps < 0:
@@ -317,4 +308,4 @@ def _parts(rows: np.ndarray, energy: np.ndarray) -> dict:
     return out
 
 
-__all__ = ["State", "METHODS", "make_integrator", "simulate", "record", "Recording"]
+__all__ = ["METHODS", "make_integrator", "simulate", "record", "Recording"]

@@ -23,12 +23,9 @@ intersection-free by construction and the step is stable at any ``dt``. When no 
 ``dhat`` and there is no friction, ``E`` is the quadratic of linear implicit Euler: one
 back-solve with a factorization kept for the run (the fast path).
 
-Obstacles (:class:`~sc_fem.dynamics.contact.Ground`, ``Sphere``, ``Box``) are static triangle
-meshes in the same collision mesh: the ground a square of 200 model sizes, a sphere an
-icosphere of 642 vertices (inscribed: at most 0.3 % of the radius inside the true sphere),
-a box its 12 triangles. Pairs within the source mesh are not tested (its parts may intersect
-at rest: the chair's legs pass through its seat; the lattice holds them together); pairs of
-different objects (:func:`merge_scenes`) and source-obstacle pairs are.
+The collision meshes -- the source mesh, the static obstacles (:class:`~sc_fem.dynamics.contact.Ground`,
+``Sphere``, ``Box``) and the lattice's outer surface for self-contact -- are built in :mod:`.collision`;
+their barrier, friction and CCD in free DOFs are :class:`~sc_fem.dynamics.barrier.BarrierContact`'s.
 
 Units: the collision mesh is in metres (``rest * scale``); ``dhat`` is given in model units.
 """
@@ -38,17 +35,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
 
 from .._validate import positive_scalar
-from ..errors import InputError
+from ..errors import InputError, InstabilityError
 from ..fem.linsolve import factorize
-from ..lattice.cubes import CubeModel
-from .base import TimeIntegrator
-from .contact import Box, Ground, Sphere
-
-DHAT_FRACTION = 1e-3
-"""Default barrier activation distance as a fraction of the source mesh's bounding-box diagonal."""
+from .barrier import BarrierContact
+from .base import AssembledIntegrator
+from .collision import ContactState, require_ipctk
+from .state import Energy
 
 CG_RTOL = 1e-8
 """Relative residual of the conjugate-gradient solves of a Newton step with contact."""
@@ -63,388 +57,6 @@ the factor as the preconditioner of the ones after it)."""
 CG_MAXITER = 40
 """CG iterations after which a contact solve factorizes its Hessian at once."""
 
-CCD_TOLERANCE = 1e-4
-"""Tight Inclusion CCD's tolerance (its default 1e-6 took up to 3.3 s for one step of the chair's
-legs landing together, against 4 ms at 1e-4 with the same step, 0.25 instead of 0.2527: the
-answer stays conservative, only a little shorter)."""
-
-CCD_MAX_ITERATIONS = 100_000
-"""Tight Inclusion CCD's iteration cap (on reaching it, it returns a conservative step)."""
-
-GROUND_SPAN = 100.0
-"""Half-width of the ground square in model sizes (bounding-box diagonals)."""
-
-
-def _ipctk():
-    try:
-        import ipctk
-    except ImportError as exc:      # pragma: no cover - ipctk is a dependency
-        raise InputError("contact inside the implicit step needs the IPC Toolkit: pip install ipctk") from exc
-    return ipctk
-
-
-def _f(a) -> np.ndarray:
-    return np.asfortranarray(a, dtype=float)
-
-
-def obstacle_mesh(ob, centre: np.ndarray, size: float) -> tuple[np.ndarray, np.ndarray]:
-    """A static obstacle as a triangle mesh, model units.
-
-    Parameters
-    ----------
-    ob : Ground, Sphere or Box
-    centre : ndarray, shape (3,)
-        Centre of the model (the ground square is centred under it).
-    size : float
-        Model size (bounding-box diagonal), model units.
-
-    Returns
-    -------
-    vertices : ndarray, shape (k, 3)
-    faces : ndarray of int, shape (f, 3)
-    """
-    import trimesh
-
-    if isinstance(ob, Ground):
-        a, (b, c) = ob.axis, [k for k in range(3) if k != ob.axis]
-        s = GROUND_SPAN * size
-        V = np.zeros((4, 3))
-        V[:, a] = ob.z
-        V[:, b] = centre[b] + s * np.array([-1, 1, 1, -1])
-        V[:, c] = centre[c] + s * np.array([-1, -1, 1, 1])
-        return V, np.array([[0, 1, 2], [0, 2, 3]])
-    if isinstance(ob, Sphere):
-        m = trimesh.creation.icosphere(subdivisions=3, radius=float(ob.radius))
-        return np.asarray(m.vertices) + np.asarray(ob.center, dtype=float), np.asarray(m.faces)
-    if isinstance(ob, Box):
-        m = trimesh.creation.box(bounds=np.array([ob.lo, ob.hi], dtype=float))
-        return np.asarray(m.vertices), np.asarray(m.faces)
-    raise InputError(f"unknown obstacle {ob!r}: use Ground, Sphere or Box")
-
-
-class _Layer:
-    """One collision mesh: moving vertices (rows ``P`` of the node DOFs) first, then static ones.
-
-    Parameters
-    ----------
-    rest : ndarray, shape (k, 3)
-        Rest positions, metres.
-    faces : ndarray of int, shape (f, 3)
-    can_collide : ipctk.CollisionFilter
-    P : scipy.sparse matrix, shape (3 n_moving, 3 m)
-        Moving-vertex displacements from node displacements (both metres).
-    dhat : float
-        Barrier activation distance of this layer, metres.
-    keep : tuple
-        The filters ``can_collide`` was composed of (kept alive with the mesh).
-    """
-
-    def __init__(self, rest: np.ndarray, faces: np.ndarray, can_collide, P, dhat: float, keep=()) -> None:
-        ipctk = _ipctk()
-        # ipctk's composed filters (a & b, ~a) refer to their operands without owning them: the
-        # operands must live as long as the mesh (freed, they made ipctk segfault at random)
-        self._keep = (can_collide, *keep)
-        self.rest = _f(rest)
-        F = np.asfortranarray(faces, dtype=np.int32).reshape(-1, 3)
-        E = ipctk.edges(F) if len(F) else np.zeros((0, 2), dtype=np.int32)
-        self.mesh = ipctk.CollisionMesh(self.rest, np.asfortranarray(E, dtype=np.int32), F)
-        self.mesh.can_collide = can_collide
-        self.P = sp.csr_matrix(P)
-        self.n_moving = self.P.shape[0] // 3
-        self.dhat = float(dhat)
-        self.Phi = self.PhiT = None
-
-    def bind(self, free_dofs: np.ndarray) -> None:
-        self.Phi = self.P[:, free_dofs].tocsr()
-        self.PhiT = self.Phi.T.tocsr()
-
-    def vertices(self, x: np.ndarray) -> np.ndarray:
-        V = np.array(self.rest)
-        V[: self.n_moving] += (self.Phi @ x).reshape(-1, 3)
-        return np.asfortranarray(V)
-
-    def collisions(self, V: np.ndarray):
-        col = _ipctk().NormalCollisions()
-        col.build(self.mesh, V, self.dhat)
-        return col
-
-    def to_dofs(self, g: np.ndarray) -> np.ndarray:
-        return self.PhiT @ g[: 3 * self.n_moving]
-
-    def hessian_to_dofs(self, H) -> sp.csr_matrix:
-        k = 3 * self.n_moving
-        return (self.PhiT @ sp.csr_matrix(H)[:k, :k] @ self.Phi).tocsr()
-
-
-@dataclass
-class ContactState:
-    """The collision meshes at one configuration: per layer, the vertices (metres) and the pairs
-    closer than its ``dhat`` (``ipctk.NormalCollisions``)."""
-
-    x: np.ndarray
-    V: list
-    col: list
-
-    @property
-    def n_pairs(self) -> int:
-        return sum(len(c) for c in self.col)
-
-
-def lattice_surface(model: CubeModel) -> np.ndarray:
-    """The outer surface of the cube lattice as triangles of lattice nodes, shape (f, 3).
-
-    Every cube face without a cube of the same body behind it becomes two triangles. The surface passes through
-    lattice nodes only, so two of its faces are either a cube edge apart or share a node: it is
-    free of intersections at rest whatever the source mesh is (the collision proxy of self-contact).
-    """
-    from .._validate import as_float_array  # noqa: F401  (keeps the import graph of this module flat)
-    from ..lattice.cubes import HEX_CORNERS
-
-    cells = np.asarray(model.cells, dtype=np.int64)
-    dims = np.asarray(model.dims, dtype=np.int64) + 2
-    piece = np.asarray(model.piece, dtype=np.int64)
-    n_p = int(piece.max()) + 1 if len(piece) else 1
-    # a cube face is open when no cube of the same body lies behind it (bodies sharing a cell are apart)
-    key = lambda c: (((c[:, 0] + 1) * dims[1] + c[:, 1] + 1) * dims[2] + c[:, 2] + 1) * n_p + piece  # noqa: E731
-    occupied = np.sort(key(cells))
-    corner = {tuple(o): i for i, o in enumerate(HEX_CORNERS.tolist())}
-    tris = []
-    for a in range(3):                        # the 6 face directions
-        b, c = [k for k in range(3) if k != a]
-        for side in (0, 1):
-            step = np.zeros(3, dtype=np.int64)
-            step[a] = 2 * side - 1
-            nb = key(cells + step)
-            pos = np.searchsorted(occupied, nb)
-            open_ = occupied[np.minimum(pos, len(occupied) - 1)] != nb
-            quad = []
-            for ob, oc in ((0, 0), (1, 0), (1, 1), (0, 1)):
-                o = [0, 0, 0]
-                o[a], o[b], o[c] = side, ob, oc
-                quad.append(corner[tuple(o)])
-            q = model.hexes[open_][:, quad]
-            tris.append(np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]]))
-    return np.concatenate(tris)
-
-
-def node_bodies(model: CubeModel) -> np.ndarray:
-    """The mechanical body of every lattice node, shape (m,): nodes linked through cubes (cubes
-    that share any node move together)."""
-    from scipy.sparse.csgraph import connected_components
-
-    n = model.n_cubes
-    rows = np.repeat(np.arange(n), 8)
-    G = sp.csr_matrix((np.ones(8 * n), (rows, model.hexes.ravel())), shape=(n, model.n_nodes))
-    _, labels = connected_components(G.T @ G, directed=False)
-    return labels.astype(np.int32)
-
-
-class BarrierContact:
-    """The collision meshes of a run: the source surface moving with the lattice, static
-    obstacles, and the lattice's outer surface for self-contact.
-
-    Two layers, each an IPC Toolkit collision mesh with its own barrier:
-
-    * **source**: the source mesh (vertices ``rest + W u``; its triangles split until no edge is
-      longer than a cube, the new vertices embedded like the others) and the obstacles. Pairs of one body
-      are not tested (a source mesh may intersect itself at rest -- the chair's legs pass through
-      its seat -- and the lattice holds its parts together); pairs of different bodies (parts of
-      the lattice that share no node: objects in one scene) and body-obstacle pairs are.
-    * **self** (``self_contact=True``): the outer surface of the cube lattice
-      (:func:`lattice_surface`) as the collision proxy of each body with itself: intersection-free
-      at rest by construction, it keeps a body that folds onto itself from passing through itself.
-      It sits up to a cube outside the source surface, so a body touches itself up to a cube early.
-
-    Parameters
-    ----------
-    model : CubeModel
-    points : array_like, shape (n, 3)
-        Source-mesh vertices at rest, model units.
-    faces : array_like of int, shape (f, 3)
-        Source-mesh triangles ((0, 3): the points collide as points).
-    obstacles : sequence of Ground / Sphere / Box
-        Static obstacles (none: only bodies against each other and themselves).
-    W : scipy.sparse matrix, shape (n, m), optional
-        Embedding of ``points`` (computed if omitted).
-    friction : float
-        Coulomb coefficient ``mu`` (0: frictionless).
-    dhat : float, optional
-        Barrier activation distance, model units (default ``1e-3`` of the source's
-        bounding-box diagonal). Bodies rest less than ``dhat`` above what they lie on.
-    eps_v : float, optional
-        Friction's static-dynamic transition speed, model units per second (default
-        ``1e-3`` diagonals per second).
-    self_contact : bool
-        Add the self layer (default True).
-
-    Raises
-    ------
-    InputError
-        An obstacle cuts the source mesh at rest (a ground that the mesh merely touches, or cuts
-        by less than ``dhat``, is lowered to ``dhat`` below its lowest vertex instead and the
-        shift is reported in ``ground_shift``), or bodies intersect each other at rest.
-    """
-
-    def __init__(self, model: CubeModel, points, faces, obstacles=(), *, W=None, friction: float = 0.0,
-                 dhat: float | None = None, eps_v: float | None = None, self_contact: bool = True) -> None:
-        from .._validate import as_points
-        from ..lattice.embed import embed
-
-        ipctk = _ipctk()
-        self.model = model
-        pts = as_points(points, "points")
-        n = len(pts)
-        tri = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-        if tri.size and (tri.min() < 0 or tri.max() >= n):
-            raise InputError(f"faces index vertices outside [0, {n})")
-        self.friction = float(friction)
-        if not 0.0 <= self.friction <= 10.0 or not np.isfinite(self.friction):
-            raise InputError(f"friction must lie in [0, 10], got {friction!r}")
-        lo, hi = pts.min(axis=0), pts.max(axis=0)
-        size = float(np.linalg.norm(hi - lo)) or 1.0
-        self.size = size
-        self.dhat = DHAT_FRACTION * size if dhat is None else positive_scalar(dhat, "dhat")
-        self.eps_v = DHAT_FRACTION * size if eps_v is None else positive_scalar(eps_v, "eps_v")
-        W = (embed(model, pts) if W is None else sp.csr_matrix(W))
-        if W.shape != (n, model.n_nodes):
-            raise InputError(f"W must have shape ({n}, {model.n_nodes}), got {W.shape}")
-        # the collision surface: the source triangles split until no edge is longer than a cube, so
-        # that a coarse mesh (a plate of 8 vertices) cannot let the lattice sag through an obstacle
-        # between its vertices; the new vertices lie on the source surface, embedded like the others
-        tri = tri[np.ptp(pts[tri], axis=1).max(axis=1) > 0] if tri.size else tri
-        if tri.size:
-            import trimesh
-
-            pts_c, tri = trimesh.remesh.subdivide_to_size(pts, tri, max_edge=model.pitch, max_iter=12)
-            if len(pts_c) > n:
-                W = sp.vstack([W, embed(model, pts_c[n:])]).tocsr()
-                pts, n = pts_c, len(pts_c)
-        self.W = W
-        nb = node_bodies(model)
-        Wc = self.W.tocsr()
-        self.bodies = nb[Wc.indices[Wc.indptr[:-1]]] if n else np.zeros(0, dtype=np.int32)
-        self.n_bodies = int(nb.max()) + 1 if len(nb) else 0
-        self.ground_shift = 0.0
-        self.obstacles = tuple(self._placed(ob, pts) for ob in obstacles)
-        s = model.scale
-        self.diag_m, self.dhat_m, self.eps_v_m = size * s, self.dhat * s, self.eps_v * s
-        # source layer: the source mesh, then the static obstacle meshes
-        Vs, Fs, ids = [pts], [tri], [self.bodies]
-        off, centre = n, 0.5 * (lo + hi)
-        for k, ob in enumerate(self.obstacles):
-            V, F = obstacle_mesh(ob, centre, size)
-            Vs.append(V)
-            Fs.append(F + off)
-            ids.append(np.full(len(V), self.n_bodies + k, dtype=np.int32))
-            off += len(V)
-        eye = sp.identity(3, format="csr")
-        static = ipctk.make_static_obstacle_filter(n)
-        patches = ipctk.make_vertex_patches_filter(np.concatenate(ids).astype(np.int32))
-        layers = [_Layer(np.vstack(Vs) * s, np.vstack(Fs), static & patches, sp.kron(self.W, eye, format="csr"),
-                         self.dhat_m, keep=(static, patches))]
-        if ipctk.has_intersections(layers[0].mesh, layers[0].rest):
-            raise InputError("bodies of the model intersect each other or an obstacle at rest: move them apart "
-                             "(parts that share a cube are one body and may intersect)")
-        self.self_contact = bool(self_contact)
-        if self.self_contact:
-            surf = lattice_surface(model)
-            used, inv = np.unique(surf, return_inverse=True)
-            sel = sp.csr_matrix((np.ones(len(used)), (np.arange(len(used)), used)), shape=(len(used), model.n_nodes))
-            other_bodies = ipctk.make_vertex_patches_filter(nb[used].astype(np.int32))
-            layers.append(_Layer(model.nodes_m[used], inv.reshape(-1, 3), ~other_bodies, sp.kron(sel, eye, format="csr"),
-                                 min(self.dhat_m, 0.1 * model.h), keep=(other_bodies,)))
-        self.layers = layers
-
-    # ------------------------------------------------------------------ set-up
-    def _placed(self, ob, pts: np.ndarray):
-        """``ob``, or for a ground the mesh touches or cuts by less than ``dhat``, a ground
-        lowered to ``dhat`` below the lowest vertex."""
-        d, _ = ob.depth(pts)                                     # > 0 inside
-        worst = float(d.max()) if len(d) else -np.inf
-        if worst <= -self.dhat:
-            return ob
-        if isinstance(ob, Ground) and worst <= self.dhat:
-            self.ground_shift = worst + self.dhat
-            return Ground(ob.z - self.ground_shift, ob.axis)
-        raise InputError(f"{ob} already cuts or touches the model at t = 0 ({int((d > -self.dhat).sum())} of "
-                         f"{len(d)} vertices lie within the contact distance dhat = {self.dhat:.3g} model units, "
-                         f"the deepest {worst:.4g} inside): move the obstacle or the model apart")
-
-    def bind(self, free_dofs: np.ndarray) -> None:
-        """Restrict every layer's DOF map to these free DOFs (the integrator's)."""
-        for L in self.layers:
-            L.bind(free_dofs)
-
-    # ------------------------------------------------------------------ evaluation
-    def state(self, x: np.ndarray) -> ContactState:
-        """The layers' vertices and close pairs at free-DOF displacements ``x`` (m)."""
-        V = [L.vertices(x) for L in self.layers]
-        return ContactState(x=x, V=V, col=[L.collisions(v) for L, v in zip(self.layers, V)])
-
-    def barrier(self, st: ContactState, kappa: float, need: str):
-        """The barrier ``kappa B`` at ``st``: energy (J), gradient or PSD-projected Hessian in free
-        DOFs (``need`` "e", "g" or "h"); ``kappa`` the physical stiffness."""
-        ipctk = _ipctk()
-        out = 0.0 if need != "h" else None
-        for L, V, col in zip(self.layers, st.V, st.col):
-            if not len(col):
-                continue
-            B = ipctk.BarrierPotential(L.dhat, kappa)
-            if need == "e":
-                out += float(B(col, L.mesh, V))
-            elif need == "g":
-                out = out + L.to_dofs(B.gradient(col, L.mesh, V))
-            else:
-                H = L.hessian_to_dofs(B.hessian(col, L.mesh, V, ipctk.PSDProjectionMethod.CLAMP))
-                out = H if out is None else out + H
-        return out
-
-    def lagged_friction(self, st: ContactState, kappa: float):
-        """IPC's lagged friction at ``st`` (the start of a step): per layer the tangential pairs and
-        their normal forces, or None without friction or contact."""
-        if self.friction <= 0 or not st.n_pairs:
-            return None
-        ipctk = _ipctk()
-        out = []
-        for L, V, col in zip(self.layers, st.V, st.col):
-            tc = ipctk.TangentialCollisions()
-            if len(col):
-                tc.build(L.mesh, V, col, ipctk.BarrierPotential(L.dhat, kappa), self.friction)
-            out.append(tc)
-        return out
-
-    def friction_terms(self, fric, st: ContactState, st0: ContactState, dt: float, need: str):
-        """The friction term ``dt D((V - V_n) / dt)`` at ``st`` (``st0``: the step's start):
-        energy, gradient or PSD Hessian in free DOFs."""
-        ipctk = _ipctk()
-        D = ipctk.FrictionPotential(self.eps_v_m)
-        out = 0.0 if need != "h" else None
-        for L, V, V0, tc in zip(self.layers, st.V, st0.V, fric):
-            if not len(tc):
-                continue
-            vel = _f((V - V0) / dt)
-            if need == "e":
-                out += dt * float(D(tc, L.mesh, vel))
-            elif need == "g":
-                out = out + L.to_dofs(D.gradient(tc, L.mesh, vel))
-            else:
-                H = L.hessian_to_dofs(D.hessian(tc, L.mesh, vel, ipctk.PSDProjectionMethod.CLAMP)) / dt
-                out = H if out is None else out + H
-        return out
-
-    def stepsize(self, st: ContactState, x1: np.ndarray) -> float:
-        """Largest ``alpha`` in [0, 1] with the straight path from ``st`` towards ``x1``
-        intersection-free in every layer (CCD)."""
-        ipctk = _ipctk()
-        ccd = ipctk.TightInclusionCCD(CCD_TOLERANCE, CCD_MAX_ITERATIONS)
-        return min(float(ipctk.compute_collision_free_stepsize(L.mesh, V, L.vertices(x1), narrow_phase_ccd=ccd))
-                   for L, V in zip(self.layers, st.V))
-
-    def min_distance_sq(self, st: ContactState) -> float:
-        """Smallest squared distance (m^2) of any close pair at ``st`` (``inf`` with none)."""
-        d = [float(col.compute_minimum_distance(L.mesh, V)) for L, V, col in zip(self.layers, st.V, st.col)
-             if len(col)]
-        return min(d) if d else np.inf
 
 class _NotConverged(Exception):
     """A Newton solve of :class:`IPC` that did not converge (the step is then cut in two)."""
@@ -462,13 +74,13 @@ class _Step:
     halvings: int = 0
 
 
-class IPC(TimeIntegrator):
+class IPC(AssembledIntegrator):
     """Backward Euler as the minimisation of the incremental potential with barrier contact.
 
     Parameters
     ----------
     model, dt, element, fixed_nodes, loads, rayleigh, lumped, u0, v0, backend
-        See :class:`~sc_fem.dynamics.base.TimeIntegrator`.
+        See :class:`~sc_fem.dynamics.base.AssembledIntegrator`.
     contact : BarrierContact, optional
         The collision mesh (none: linear backward Euler, one back-solve per step).
     tol : float
@@ -482,6 +94,14 @@ class IPC(TimeIntegrator):
 
     name = "ipc"
     implicit = True
+    supports = AssembledIntegrator.supports | {"friction"}
+    convergence_hint = "use a smaller dt"
+
+    @classmethod
+    def contact_for(cls, model, points, faces, obstacles, *, W=None, friction: float = 0.0, self_contact: bool = True):
+        """The collision meshes of a run (:class:`~sc_fem.dynamics.barrier.BarrierContact`), also
+        without obstacles: bodies collide with each other and, with ``self_contact``, with themselves."""
+        return BarrierContact(model, points, faces, obstacles, W=W, friction=friction, self_contact=self_contact)
 
     def __init__(self, model, dt, *, contact: BarrierContact | None = None, tol: float = 1e-5,
                  max_newton: int = 100, **kw) -> None:
@@ -523,8 +143,6 @@ class IPC(TimeIntegrator):
         return float(self.barrier.barrier(self._state_at(x), self._kphys(), "e"))
 
     def energy(self):
-        from .base import Energy
-
         e = super().energy()
         return Energy(kinetic=e.kinetic, elastic=e.elastic, gravity=e.gravity, contact=self.contact_energy(self._u))
 
@@ -578,7 +196,7 @@ class IPC(TimeIntegrator):
 
     def _update_kappa(self, x, u, ut, f, st: ContactState) -> None:
         """IPC's adaptive barrier stiffness: set from the gradients at the step's start, never lowered."""
-        ipctk = _ipctk()
+        ipctk = require_ipctk()
         c = self.barrier
         _, gE = self._smooth(x, u, ut, f)
         gB = c.barrier(st, 1.0, "g") if st.n_pairs else 0 * x
@@ -628,8 +246,6 @@ class IPC(TimeIntegrator):
     def _substeps(self, u, v, t0, t1, depth: int):
         """``(x, v)`` at ``t1`` from ``(u, v)`` at ``t0``: one Newton solve, or, when it does not
         converge, two half steps (at most ``MAX_HALVINGS`` times nested)."""
-        from ..errors import InstabilityError
-
         try:
             x = self._newton(u, v, t1, t1 - t0)
         except _NotConverged as exc:
@@ -699,7 +315,7 @@ class IPC(TimeIntegrator):
             if st.n_pairs:
                 d = c.min_distance_sq(st)
                 if np.isfinite(prev_d):
-                    self._kappa = _ipctk().update_barrier_stiffness(prev_d, d, self._kappa_max, self._kappa,
+                    self._kappa = require_ipctk().update_barrier_stiffness(prev_d, d, self._kappa_max, self._kappa,
                                                                     c.diag_m)
                 prev_d = d
         else:

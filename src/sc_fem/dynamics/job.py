@@ -4,13 +4,15 @@ runs, callable from Python with the same meaning (loads, obstacles, impulses, me
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
 from .._validate import as_float_array, positive_scalar
 from ..errors import InputError
-from ..fem.reference import GRAVITY
+from ..units import GRAVITY
+from .newmark import NewmarkOptions
+from .xpbd import XPBDOptions
 
 LATTICE_TRACK_BYTES = 256 * 2**20
 """Largest recorded node-displacement history (bytes) that a run keeps for its animation file."""
@@ -29,24 +31,23 @@ def up_axis(up: str) -> int:
     return AXES.index(up)
 
 
-@dataclass(frozen=True)
-class XPBDOptions:
-    """Options of the XPBD method (see :class:`~sc_fem.dynamics.xpbd.XPBDSolver`)."""
+OPTIONS = {"gust": "loads", "impulse": "impulses", "velocity": "velocity", "ground": "contact",
+           "sphere": "contact", "box": "contact", "rayleigh": "rayleigh", "beta/gamma/hht-alpha": "newmark",
+           "substeps/iterations/constraints/xpbd-damping": "substeps"}
+"""The options of :func:`run_simulation` that a method must support, and the feature
+(:attr:`~sc_fem.dynamics.base.TimeIntegrator.supports`) each needs; gravity and fixed nodes every
+method takes."""
 
-    substeps: int = 20
-    iterations: int = 1
-    constraints: str = "neohookean"
-    damping: float = 0.0
+_SCENE_OPTIONS = ("gust", "impulse", "velocity", "ground", "sphere", "box", "rayleigh")
 
 
-@dataclass(frozen=True)
-class NewmarkOptions:
-    """Options of the implicit methods: ``beta``, ``gamma`` (None: the scheme's default) and the
-    HHT ``alpha`` in [-1/3, 0]."""
-
-    beta: float | None = None
-    gamma: float | None = None
-    alpha: float = 0.0
+def check_supported(method: str, cls, requested) -> None:
+    """Refuse the :data:`OPTIONS` in ``requested`` that the method class ``cls`` does not support."""
+    unsupported = [o for o in requested if OPTIONS[o] not in cls.supports]
+    if unsupported:
+        ok = [o for o in _SCENE_OPTIONS if OPTIONS[o] in cls.supports]
+        what = "gravity and fixed nodes only" if not ok else f"gravity, fixed nodes, {', '.join(ok[:-1])} and {ok[-1]}"
+        raise InputError(f"method {method!r} supports {what}, not {', '.join(unsupported)}")
 
 
 def impulse_nodes(scene, impulses) -> np.ndarray | None:
@@ -69,11 +70,14 @@ def impulse_nodes(scene, impulses) -> np.ndarray | None:
 
 
 def default_dt(method: str, fps: float) -> float:
-    """The time step (s) a run takes when none is given: two steps per recorded frame for the
-    implicit methods (stable at any step; the frame rate is what the animation resolves), one
+    """The time step (s) a run takes when none is given: ``1 / (fps * steps_per_frame)`` of the method
+    (:attr:`~sc_fem.dynamics.base.TimeIntegrator.steps_per_frame`): two steps per recorded frame for
+    the implicit methods (stable at any step; the frame rate is what the animation resolves), one
     frame for XPBD (its substeps divide it). Central differences take ``0.9 dt_crit`` instead
-    (:func:`run_simulation`)."""
-    return 1.0 / fps if method == "xpbd" else 0.5 / fps
+    (:func:`run_simulation`; this is the step it starts from)."""
+    from .driver import METHODS
+
+    return 1.0 / (fps * (METHODS[method].steps_per_frame or 2))
 
 
 def run_simulation(scene, *, duration: float, dt: float | None = None, method: str = "auto", fps: float = 50.0,
@@ -116,7 +120,7 @@ def run_simulation(scene, *, duration: float, dt: float | None = None, method: s
         Coulomb friction coefficient of the contacts of ``"ipc"`` (default 0.3; 0: frictionless).
     self_contact : bool
         ``"ipc"``: keep each body from passing through itself, with the lattice's outer surface as
-        its collision proxy (default True; :class:`~sc_fem.dynamics.ipc.BarrierContact`). Bodies
+        its collision proxy (default True; :class:`~sc_fem.dynamics.barrier.BarrierContact`). Bodies
         (parts of the lattice that share no node) always collide with each other.
     rayleigh : (a0, a1)
         Rayleigh damping ``C = a0 M + a1 K``.
@@ -133,9 +137,8 @@ def run_simulation(scene, *, duration: float, dt: float | None = None, method: s
         and ``info["warnings"]`` (e.g. energy grown with nothing feeding it).
     """
     from ..fem.elements import DEFAULT_ELEMENT
-    from .contact import Contact, obstacles_from
+    from .contact import obstacles_from
     from .driver import METHODS, make_integrator, record
-    from .ipc import BarrierContact
     from .loads import Gravity, LoadSet, VertexForce, half_sine
 
     dt_given = dt
@@ -146,50 +149,46 @@ def run_simulation(scene, *, duration: float, dt: float | None = None, method: s
     obstacles = obstacles_from(ground, sphere, box, up=up_axis(up))
     if method == "auto":
         method = "ipc" if obstacles else "newmark"
+    cls = METHODS[method]
+    check_supported(method, cls, [name for name, on in (
+        ("gust", gust is not None), ("impulse", impulses is not None and bool(len(impulses))),
+        ("velocity", velocity is not None), ("ground", ground is not None), ("sphere", sphere is not None),
+        ("box", box is not None), ("rayleigh", any(rayleigh)), ("beta/gamma/hht-alpha", newmark != NewmarkOptions()),
+        ("substeps/iterations/constraints/xpbd-damping", xpbd != XPBDOptions())) if on])
     element = DEFAULT_ELEMENT if element is None else element
     model, verts = scene.model, scene.rest_vertices
     a = up_axis(up)
     g = tuple(-GRAVITY if gravity and k == a else 0.0 for k in range(3))
-    if method == "xpbd":
-        unsupported = [name for name, on in (
-            ("gust", gust is not None), ("impulse", impulses is not None and bool(len(impulses))),
-            ("velocity", velocity is not None),
-            ("ground", ground is not None), ("sphere", sphere is not None), ("box", box is not None),
-            ("rayleigh", any(rayleigh)), ("beta/gamma/hht-alpha", newmark != NewmarkOptions())) if on]
-        if unsupported:
-            raise InputError(f"method 'xpbd' supports gravity and fixed nodes only, not {', '.join(unsupported)}")
     dt = default_dt(method, fps) if dt is None else positive_scalar(dt, "dt")
-    if method == "xpbd":
-        integ = make_integrator("xpbd", model, dt, fixed_nodes=scene.fixed_nodes, gravity=g, substeps=xpbd.substeps,
-                                iterations=xpbd.iterations, constraints=xpbd.constraints, damping=xpbd.damping)
-    else:
-        loads = [Gravity(g)] if gravity else []
-        if gust is not None:
-            fx, fy, fz, secs = as_float_array(gust, "gust (Fx, Fy, Fz, seconds)", (4,))
-            loads.append(VertexForce(np.arange(len(verts)), np.array([fx, fy, fz]) / len(verts), half_sine(secs),
-                                     spread="embedding"))
-        loadset = LoadSet(model, loads, points=verts, faces=scene.faces, W=scene.W)
-        kw = {"fixed_nodes": scene.fixed_nodes, "loads": loadset, "rayleigh": tuple(rayleigh), "element": element}
-        if velocity is not None:
-            kw["v0"] = np.broadcast_to(as_float_array(velocity, "velocity (vx, vy, vz)", (3,)), (model.n_nodes, 3))
-        if method == "ipc":
-            if newmark != NewmarkOptions():
-                raise InputError("beta, gamma and the HHT alpha apply to the Newmark methods; 'ipc' is backward Euler")
-            kw["contact"] = BarrierContact(model, verts, scene.faces, obstacles, W=scene.W, friction=friction,
-                                           self_contact=self_contact)
-        else:
-            kw["contact"] = Contact(model, verts, obstacles, W=scene.W) if obstacles else None
-            if method != "central":
-                kw.update(beta=newmark.beta, gamma=newmark.gamma, alpha=newmark.alpha)
-            elif newmark != NewmarkOptions():
-                raise InputError("beta, gamma and the HHT alpha apply to the implicit methods, not to 'central'")
+    loads = [Gravity(g)] if gravity else []
+    if gust is not None:
+        fx, fy, fz, secs = as_float_array(gust, "gust (Fx, Fy, Fz, seconds)", (4,))
+        loads.append(VertexForce(np.arange(len(verts)), np.array([fx, fy, fz]) / len(verts), half_sine(secs),
+                                 spread="embedding"))
+    kw = {"fixed_nodes": scene.fixed_nodes,
+          "loads": LoadSet(model, loads, points=verts, faces=scene.faces, W=scene.W)}
+    features = cls.supports
+    if "element" in features:
+        kw["element"] = element
+    if "rayleigh" in features:
+        kw["rayleigh"] = tuple(rayleigh)
+    if velocity is not None:
+        kw["v0"] = np.broadcast_to(as_float_array(velocity, "velocity (vx, vy, vz)", (3,)), (model.n_nodes, 3))
+    if "contact" in features:
+        kw["contact"] = cls.contact_for(model, verts, scene.faces, obstacles, W=scene.W, friction=friction,
+                                        self_contact=self_contact)
+    if "newmark" in features:
+        kw.update(beta=newmark.beta, gamma=newmark.gamma, alpha=newmark.alpha)
+    if "substeps" in features:
+        kw.update(substeps=xpbd.substeps, iterations=xpbd.iterations, constraints=xpbd.constraints,
+                  damping=xpbd.damping)
+    integ = make_integrator(method, model, dt, **kw)
+    if cls.steps_per_frame is None and dt_given is None:    # 0.9 dt_crit, a whole number of steps per frame
+        dt = 1.0 / fps / math.ceil(1.0 / (fps * 0.9 * integ.dt_crit))
         integ = make_integrator(method, model, dt, **kw)
-        if method == "central" and dt_given is None:       # 0.9 dt_crit, a whole number of steps per frame
-            dt = 1.0 / fps / math.ceil(1.0 / (fps * 0.9 * integ.dt_crit))
-            integ = make_integrator(method, model, dt, **kw)
-        J = impulse_nodes(scene, impulses)
-        if J is not None:
-            integ.set_velocity_from_impulse(J)
+    J = impulse_nodes(scene, impulses)
+    if J is not None:
+        integ.set_velocity_from_impulse(J)
     n_steps = int(round(duration / dt))
     if n_steps < 1:
         raise InputError(f"duration {duration:g} s is shorter than one step of dt {dt:g} s")
@@ -203,14 +202,12 @@ def run_simulation(scene, *, duration: float, dt: float | None = None, method: s
     # unless they would take more than LATTICE_TRACK_BYTES of memory
     keep_u = (n_steps // every + 1) * model.n_nodes * 24 <= LATTICE_TRACK_BYTES
     rec = record(integ, n_steps, scene=scene, every=every, progress=progress, keep_u=keep_u)
-    dtc = integ.dt_crit if method == "central" else None
+    dtc = integ.dt_crit if cls.steps_per_frame is None else None
     warnings = []
     if rec.energy_gain > ENERGY_GAIN_WARN:
         # the loads' work is accounted; damping, friction and contact only take energy out
         warnings.append(f"the run created energy: up to {100 * rec.energy_gain:.3g} % of its energy scale beyond the "
-                        "work of the loads: it is not converged"
-                        + (" (use more substeps)" if method == "xpbd" else
-                           " (use --method ipc, or a smaller dt)" if method != "ipc" else " (use a smaller dt)"))
+                        f"work of the loads: it is not converged ({integ.convergence_hint})")
     info = {"method": method, "dt": dt, "duration": duration, "n_steps": n_steps, "source": scene.source,
             "element": element, "material": model.info.get("material", ""), "gravity": bool(gravity),
             "ground": ground, "up": up, "sphere": None if sphere is None else [float(x) for x in sphere],
@@ -218,6 +215,6 @@ def run_simulation(scene, *, duration: float, dt: float | None = None, method: s
             "dt_crit": dtc, "scale": model.scale, "cubes": model.n_cubes, **rec.info,
             "implicit": bool(integ.implicit), "warnings": warnings,
             "contact_tol": None if getattr(integ, "contact", None) is None else float(integ.contact.tol),
-            "friction": friction if method == "ipc" else None,
+            "friction": friction if "friction" in cls.supports else None,
             "velocity": None if velocity is None else [float(x) for x in velocity]}
     return replace(rec, info=info)

@@ -34,8 +34,13 @@ import scipy.sparse as sp
 from .._validate import as_float_array, as_indices, as_points
 from ..errors import InputError
 from ..lattice.cubes import CubeModel
+from ..units import GRAVITY
 
 Profile = Callable[[float], float]
+
+DOWN = (0.0, 0.0, -GRAVITY)
+"""The default gravitational acceleration, m/s^2: 9.81 down the z axis (:class:`Gravity`,
+:class:`~sc_fem.dynamics.xpbd.XPBDSolver`)."""
 
 PATCH_RADIUS = 1.5
 """Radius (in cube edges) of the node patch that shares a vertex impulse (:func:`impulse_nodes`)."""
@@ -66,7 +71,7 @@ def step(start: float = 0.0) -> Profile:
 class Gravity:
     """Uniform gravitational acceleration ``g`` (m/s^2), shape (3,)."""
 
-    g: tuple = (0.0, 0.0, -9.81)
+    g: tuple = DOWN
 
 
 @dataclass(frozen=True, eq=False)
@@ -130,13 +135,18 @@ class LoadSet:
 
     Attributes
     ----------
+    gravity : ndarray, shape (3,)
+        The gravitational acceleration of the :class:`Gravity` loads (their sum), m/s^2.
     gravity_force : ndarray, shape (m, 3)
         Constant node forces of gravity, N.
+    n_forces : int
+        The loads other than gravity (forces and pressures).
     """
 
     def __init__(self, model: CubeModel, loads: Sequence = (), *, points=None, faces=None, W=None) -> None:
         m = model.n_nodes
         self.model = model
+        self.gravity = np.zeros(3)
         self.gravity_force = np.zeros((m, 3))
         self._timed: list[tuple[np.ndarray, Profile]] = []
         pts = None if points is None else as_points(points, "points")
@@ -150,6 +160,7 @@ class LoadSet:
         for ld in loads:                                    # loop over a handful of loads
             if isinstance(ld, Gravity):
                 g = as_float_array(ld.g, "gravity", (3,))
+                self.gravity = self.gravity + g
                 self.gravity_force = self.gravity_force + model.node_masses()[:, None] * g[None, :]
             elif isinstance(ld, VertexForce):
                 self._need(pts, "VertexForce")
@@ -176,6 +187,10 @@ class LoadSet:
                 self._timed.append((np.asarray(self.W[tri[fidx].ravel()].T @ fv), ld.time or _one))
             else:
                 raise InputError(f"unknown load {ld!r}: use Gravity, VertexForce or FacePressure")
+
+    @property
+    def n_forces(self) -> int:
+        return len(self._timed)
 
     @staticmethod
     def _need(pts, what: str) -> None:

@@ -24,32 +24,52 @@ high frequencies (first-order accurate); HHT with ``alpha`` in ``[-1/3, 0]`` and
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any
+
 import numpy as np
+import scipy.sparse as sp
 
 from ..errors import InputError
-from ..fem.linsolve import factorize
-from .base import TimeIntegrator
+from ..fem.linsolve import Factorization, factorize
+from ..lattice.cubes import CubeModel
+from .base import AssembledIntegrator
 
 
-class Newmark(TimeIntegrator):
+@dataclass(frozen=True)
+class NewmarkOptions:
+    """Options of the Newmark methods (``"newmark"``, ``"corotational"``): ``beta``, ``gamma`` (None:
+    the scheme's default) and the HHT ``alpha`` in [-1/3, 0]."""
+
+    beta: float | None = None
+    gamma: float | None = None
+    alpha: float = 0.0
+
+
+class Newmark(AssembledIntegrator):
     """Newmark-beta / HHT-alpha integrator (see the module docstring).
 
     Parameters
     ----------
-    model, dt, element, fixed_nodes, loads, contact, rayleigh, lumped, u0, v0, backend
-        See :class:`~sc_fem.dynamics.base.TimeIntegrator`.
+    model : CubeModel
+    dt : float
+        Time step, s.
     beta, gamma : float, optional
         Newmark parameters; default 1/4, 1/2 (or the HHT values when ``alpha`` is set).
     alpha : float
         HHT parameter in ``[-1/3, 0]`` (0: plain Newmark).
+    **kw
+        ``element``, ``fixed_nodes``, ``loads``, ``contact``, ``rayleigh``, ``lumped``, ``u0``, ``v0``,
+        ``backend``: see :class:`~sc_fem.dynamics.base.AssembledIntegrator`.
     """
 
     name = "newmark"
     implicit = True
+    supports = AssembledIntegrator.supports | {"newmark"}
     iterations = 1
 
-    def __init__(self, model, dt, *, beta: float | None = None, gamma: float | None = None, alpha: float = 0.0,
-                 **kw) -> None:
+    def __init__(self, model: CubeModel, dt: float, *, beta: float | None = NewmarkOptions.beta,
+                 gamma: float | None = NewmarkOptions.gamma, alpha: float = NewmarkOptions.alpha, **kw: Any) -> None:
         alpha = float(alpha)
         if not -1.0 / 3.0 - 1e-12 <= alpha <= 0.0:
             raise InputError(f"HHT alpha must lie in [-1/3, 0], got {alpha!r}")
@@ -65,8 +85,19 @@ class Newmark(TimeIntegrator):
         super().__init__(model, dt, **kw)
 
     # ------------------------------------------------------------------ hooks for non-linear models
-    def tangent(self, u: np.ndarray):
-        """Tangent stiffness at ``u`` (linear: ``K``)."""
+    def tangent(self, u: np.ndarray) -> sp.spmatrix:
+        """Tangent stiffness at ``u`` (linear: ``K``).
+
+        Parameters
+        ----------
+        u : ndarray, shape (n_free,)
+            Displacement, m.
+
+        Returns
+        -------
+        scipy.sparse matrix, shape (n_free, n_free)
+            Tangent stiffness, N/m.
+        """
         return self.K
 
     def _effective(self, Kt):
@@ -79,8 +110,19 @@ class Newmark(TimeIntegrator):
     def _factor(self, Kt):
         return factorize(self._effective(Kt), self.backend)
 
-    def effective_solver(self, u: np.ndarray):
-        """Factorization of ``S`` (linear: computed once and kept)."""
+    def effective_solver(self, u: np.ndarray) -> Factorization:
+        """Factorization of the effective matrix ``S`` (linear: computed once and kept).
+
+        Parameters
+        ----------
+        u : ndarray, shape (n_free,)
+            Displacement at the start of the step, m (unused by the linear model).
+
+        Returns
+        -------
+        Factorization
+            ``solve(r)``: ``S^-1 r``, residual force (N) to acceleration (m/s^2).
+        """
         if self._S is None:
             self._S = self._factor(self.K)
         return self._S

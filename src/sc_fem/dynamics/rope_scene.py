@@ -6,12 +6,16 @@ from __future__ import annotations
 
 import time as _time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .._validate import positive_int, positive_scalar
 from ..lattice.cubes import CubeModel
 from .xpbd import XPBDSolver
+
+if TYPE_CHECKING:
+    import trimesh
 
 
 @dataclass(frozen=True, eq=False)
@@ -44,7 +48,7 @@ class RopeScene:
     timings: dict = field(default_factory=dict)
 
 
-def rope_curve_points(mesh, n_curves: int = 24, n_points: int = 832) -> np.ndarray:
+def rope_curve_points(mesh: trimesh.Trimesh, n_curves: int = 24, n_points: int = 832) -> np.ndarray:
     """Points on the surface of a rope lying along x: ``n_curves`` angular positions around the
     long axis x ``n_points`` stations along it, projected onto the surface by ray casting from the
     axis outwards. Returns shape (n_curves, n_points, 3), model units."""
@@ -75,8 +79,8 @@ def rope_curve_points(mesh, n_curves: int = 24, n_points: int = 832) -> np.ndarr
 
 
 def rope_scene(n_frames: int = 201, fps: float = 60.0, resolution: int = 40, substeps: int = 60,
-               iterations: int = 1, youngs: float | None = None, mesh=None, constraints: str = "neohookean",
-               n_curves: int = 24, n_points: int = 832, damping: float = 0.0,
+               iterations: int = 1, youngs: float | None = None, mesh: trimesh.Trimesh | None = None,
+               constraints: str = "neohookean", n_curves: int = 24, n_points: int = 832, damping: float = 0.0,
                progress: bool = False, kernel: str = "auto") -> RopeScene:
     """Simulate the cube-rope scene with XPBD.
 
@@ -95,7 +99,17 @@ def rope_scene(n_frames: int = 201, fps: float = 60.0, resolution: int = 40, sub
         1 MPa; its Poisson's ratio and density are always used).
     mesh : trimesh.Trimesh, optional
         Rope mesh along x (default ``sc_fem.geometry.models.load("rope")``).
-    constraints, damping, kernel : see :class:`~sc_fem.dynamics.xpbd.XPBDSolver`.
+    constraints, damping, kernel : str, float, str
+        As :class:`~sc_fem.dynamics.xpbd.XPBDSolver` (``damping`` in 1/s).
+    n_curves, n_points : int
+        Curves around the rope's axis and points along each (:func:`rope_curve_points`).
+    progress : bool
+        Show a progress bar on stderr (needs tqdm).
+
+    Returns
+    -------
+    RopeScene
+        Curves, vertices and nodes per frame (model units), and the timings.
     """
     from ..lattice.embed import embed
     from ..lattice.voxelize import voxelize

@@ -5,7 +5,8 @@ constraints of every cube, update velocities. Constraints: ``"neohookean"`` (def
 Neo-Hookean pair linearising to the lattice's own Lame parameters), ``"corotational"`` (an ARAP
 block, stable at long substeps but soft) and ``"distance"`` (a central-force lattice). A step that
 blows up raises :class:`~sc_fem.errors.InstabilityError` naming the substep that is too long.
-The constraint kernels are in :mod:`.xpbd_kernels`, the stability sweep in :mod:`.xpbd_stability`;
+The constraints and their projection are in :mod:`.xpbd_constraints` (batched kernels in
+:mod:`.xpbd_kernels`), the stability sweep in :mod:`.xpbd_stability`;
 the algorithm, the quadrature and the measurements behind the defaults are in ``docs/xpbd.md``.
 Through :class:`~sc_fem.dynamics.xpbd_integrator.XPBDIntegrator` it runs on the common driver.
 
@@ -16,24 +17,36 @@ from __future__ import annotations
 
 import sys
 from dataclasses import dataclass
-from typing import Iterator
+from typing import Any, Iterator
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .._validate import as_float_array, as_points, positive_int, positive_scalar
 from ..errors import InputError, InstabilityError
 from ..lattice.cubes import CubeModel
-from .base import Energy
-from .corotational import DN_CENTRE, centre_F, polar_rotation
+from .loads import DOWN
+from .state import Energy
+from .xpbd_constraints import CONSTRAINTS, ConstraintSet
 from .xpbd_jit import choose_kernel
-from .xpbd_kernels import (L_REF, MATCHING_KIND, MATCHINGS, S_REF, _as_fixed, _scatter_add, _volume_terms, corotational_terms, cube_colors,
-                           neohookean_terms)
-
-CONSTRAINTS = ("corotational", "neohookean", "distance")
+from .xpbd_kernels import _as_fixed
 
 XPBDEnergy = Energy
-"""Energy split of an XPBD state (alias of :class:`sc_fem.dynamics.base.Energy`): kinetic,
+"""Energy split of an XPBD state (alias of :class:`sc_fem.dynamics.state.Energy`): kinetic,
 gravity potential (relative to the rest positions), elastic (of the constraints, zero at rest), J."""
+
+
+@dataclass(frozen=True)
+class XPBDOptions:
+    """Options of the XPBD method, and their defaults wherever XPBD runs (:class:`XPBDSolver`,
+    :func:`simulate_xpbd`, :class:`~sc_fem.dynamics.xpbd_integrator.XPBDIntegrator`,
+    :func:`~sc_fem.dynamics.job.run_simulation`): substeps per step, solver iterations per substep,
+    the constraint family and the mass-proportional damping rate (1/s)."""
+
+    substeps: int = 20
+    iterations: int = 1
+    constraints: str = "neohookean"
+    damping: float = 0.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -68,11 +81,11 @@ class XPBDSolver:
     dt : float
         Frame step in seconds (one :meth:`step`); split into ``substeps`` substeps.
     substeps, iterations : int
-        Substeps per step and solver iterations per substep (J of Algorithm 1).
+        Substeps per step (default 20) and solver iterations per substep (J of Algorithm 1; default 1).
     constraints : {"neohookean", "corotational", "distance"}
         Constraint family (see the module docstring).
     gravity : array_like, shape (3,)
-        m/s^2.
+        m/s^2 (default 9.81 down z, :data:`~sc_fem.dynamics.loads.DOWN`).
     fixed_nodes : array_like of int or bool mask (m,), optional
         Nodes held at their initial positions.
     damping : float
@@ -94,11 +107,12 @@ class XPBDSolver:
         Both give the same result up to round-off. The chosen one is :attr:`kernel`.
     """
 
-    def __init__(self, model: CubeModel, dt: float, *, substeps: int = 10, iterations: int = 1,
-                 constraints: str = "neohookean", gravity=(0.0, 0.0, -9.81), fixed_nodes=None,
-                 damping: float = 0.0, gauss_seidel: bool = True, relaxation: float = 1.0,
-                 warm_start: bool = False, max_energy_growth: float = 10.0,
-                 positions=None, velocities=None, kernel: str = "auto") -> None:
+    def __init__(self, model: CubeModel, dt: float, *, substeps: int = XPBDOptions.substeps,
+                 iterations: int = XPBDOptions.iterations, constraints: str = XPBDOptions.constraints,
+                 gravity: ArrayLike = DOWN, fixed_nodes: ArrayLike | None = None, damping: float = XPBDOptions.damping,
+                 gauss_seidel: bool = True, relaxation: float = 1.0, warm_start: bool = False,
+                 max_energy_growth: float = 10.0, positions: ArrayLike | None = None,
+                 velocities: ArrayLike | None = None, kernel: str = "auto") -> None:
         if not isinstance(model, CubeModel):
             raise InputError(f"model must be a CubeModel, got {type(model).__name__}")
         if constraints not in CONSTRAINTS:
@@ -132,247 +146,49 @@ class XPBDSolver:
         self.h = model.h
         self.kernel = choose_kernel(kernel, constraints == "neohookean" and self.gauss_seidel)
         """The sweep that runs: ``"numba"`` or ``"numpy"``."""
-        self._build()
+        self.constraint_set = ConstraintSet(model, constraints, self.w, self.rest, relaxation=self.relaxation)
+        """The constraints, their multipliers and their projection."""
         e0 = self.energy()
         self._energy0 = e0.total
         lo, hi = self.rest.min(0), self.rest.max(0)
         self.energy_scale = max(abs(e0.kinetic) + abs(e0.elastic),
                                 float(self.mass.sum() * np.linalg.norm(self.gravity) * np.linalg.norm(hi - lo)),
                                 1e-300)
-        """Energy scale (J) of the runaway test: max(initial kinetic + elastic, M |g| diameter)."""
-
-    # ------------------------------------------------------------------ setup
-    def _build(self) -> None:
-        md = self.model
-        V = self.h ** 3
-        lam, mu = md.lame()
-        colors = cube_colors(md)
-        self._hexes64 = np.ascontiguousarray(md.hexes, dtype=np.int64)
-        if self.constraints == "neohookean":
-            lam_nh = lam + mu
-            self._gamma = 1.0 + mu / lam_nh
-            self._alphaD = 1.0 / (mu * V)
-            self._alphaH = 1.0 / (lam_nh * V)
-        if self.constraints == "corotational":
-            self._alphaD = 1.0 / (2.0 * mu * V)
-            self._alphaH = 1.0 / (lam * V)
-            self._Ainv_ds = None
-        if self.constraints != "distance":
-            self._lamD = np.zeros((md.n_cubes, 8, 3) if self.constraints == "corotational" else md.n_cubes)
-            self._lamH = np.zeros(md.n_cubes)
-            groups = [np.flatnonzero(colors == c) for c in range(8) if np.any(colors == c)]
-            valence = np.bincount(md.hexes.ravel(), minlength=md.n_nodes)
-            self._jac = self.relaxation / valence[md.hexes].max(axis=1)
-            nodes_of = md.hexes
-        else:
-            M = lam + 2.0 * mu
-            kfac = np.where(MATCHING_KIND == 3, 0.25, 1.0 / 12.0)                   # (7,)
-            pairs, k = [], []
-            for c in range(8):
-                cubes = np.flatnonzero(colors == c)
-                if cubes.size == 0:
-                    continue
-                for g in range(7):
-                    pairs.append(md.hexes[cubes][:, MATCHINGS[g]].reshape(-1, 2))  # (4 n_c, 2)
-                    k.append(np.repeat(M[cubes] * self.h * kfac[g], 4))
-            self._pairs = np.concatenate(pairs)
-            self._alpha = 1.0 / np.concatenate(k)
-            self._rest_len = np.linalg.norm(self.rest[self._pairs[:, 1]] - self.rest[self._pairs[:, 0]], axis=1)
-            ends = np.cumsum([0] + [len(p) for p in pairs])
-            groups = [np.arange(i, j) for i, j in zip(ends[:-1], ends[1:])]
-            self._lamC = np.zeros(len(self._pairs))
-            nodes_of = self._pairs
-            cval = np.bincount(self._pairs.ravel(), minlength=md.n_nodes)
-            self._jac = self.relaxation / cval[self._pairs].max(axis=1)
-
-        # per group: constraint indices, their nodes and inverse masses (last group = all, for Jacobi)
-        self._gidx = [*groups, np.arange(len(nodes_of))]
-        self._order = np.ascontiguousarray(np.concatenate(groups), dtype=np.int64)   # colour by colour
-        self._gnodes = [nodes_of[i] for i in self._gidx]
-        self._gw = [self.w[nd][..., None] for nd in self._gnodes]
-
-    # ------------------------------------------------------------------ constraint projection
-    def _project_nh(self, x: np.ndarray, g: int, aD: np.ndarray, aH: np.ndarray,
-                    scale=None, accumulate: bool = False):
-        """Project the cube constraints of group ``g`` (2x2 coupled solve per cube)."""
-        idx, hexes, W = self._gidx[g], self._gnodes[g], self._gw[g]
-        X = x[hexes]
-        CD, gD, J, gH = neohookean_terms(X, self.h)
-        aD, aH = aD[idx], aH[idx]
-        WgD, WgH = W * gD, W * gH
-        n = len(idx)
-        A11 = np.einsum("ij,ij->i", WgD.reshape(n, 24), gD.reshape(n, 24)) + aD
-        A22 = np.einsum("ij,ij->i", WgH.reshape(n, 24), gH.reshape(n, 24)) + aH
-        A12 = np.einsum("ij,ij->i", WgD.reshape(n, 24), gH.reshape(n, 24))
-        r1 = -CD - aD * self._lamD[idx]
-        r2 = self._gamma[idx] - J - aH * self._lamH[idx]
-        det = A11 * A22 - A12 * A12
-        dD = (A22 * r1 - A12 * r2) / det
-        dH = (A11 * r2 - A12 * r1) / det
-        if scale is not None:
-            dD, dH = dD * scale[idx], dH * scale[idx]
-        self._lamD[idx] += dD
-        self._lamH[idx] += dH
-        dX = WgD * dD[:, None, None] + WgH * dH[:, None, None]
-        if accumulate:
-            return hexes, dX
-        x[hexes] = X + dX
-        return None
-
-    def _block_inverse(self, ds: float) -> None:
-        """Cache ``(S W_c S / h^2 + alpha~_D I)^-1`` per cube (n, 8, 8), split by group, for the
-        substep ``ds``."""
-        if self._Ainv_ds != ds:
-            Wc = self.w[self.model.hexes]                                               # (n, 8)
-            A = np.einsum("ab,nb,bc->nac", S_REF, Wc, S_REF) / self.h ** 2
-            A += (self._alphaD / ds ** 2)[:, None, None] * np.eye(8)
-            Ainv = np.linalg.inv(A)
-            self._Ainv_g = [Ainv[i] for i in self._gidx]
-            self._Ainv_ds = ds
-
-    def _update_rotations(self, x: np.ndarray) -> None:
-        self._R = polar_rotation(centre_F(x[self.model.hexes], self.h))
-
-    def _project_corot(self, x: np.ndarray, g: int, aD: np.ndarray, aH: np.ndarray,
-                       scale=None, accumulate: bool = False):
-        """Project the cubes of group ``g``: deviatoric block (exact 24-dof solve at fixed R),
-        then the volume constraint ``det F - 1`` (Gauss-Seidel: at the updated positions; Jacobi
-        (``accumulate``): both at ``x``, corrections returned as ``(hexes, dX)``)."""
-        if accumulate:
-            hexes, dXD = self._project_dev(x, g, aD, scale, accumulate=True)
-            _, dXH = self._project_vol(x, g, aH, scale, accumulate=True)
-            return hexes, dXD + dXH
-        self._project_dev(x, g, aD)
-        self._project_vol(x, g, aH)
-        return None
-
-    def _project_dev(self, x: np.ndarray, g: int, aD: np.ndarray, scale=None, accumulate: bool = False):
-        """Deviatoric (ARAP) block of group ``g``: exact 24-dof solve at fixed ``R``."""
-        idx, hexes, W = self._gidx[g], self._gnodes[g], self._gw[g]
-        X = x[hexes]
-        rhs = -corotational_terms(X, self.h, self._R[idx]) - aD[idx][:, None, None] * self._lamD[idx]
-        dl = np.matmul(self._Ainv_g[g], rhs)                                            # (n, 8, 3)
-        if scale is not None:
-            dl = dl * scale[idx][:, None, None]
-        self._lamD[idx] += dl
-        dX = W * np.matmul(S_REF, dl) * (1.0 / self.h)
-        if accumulate:
-            return hexes, dX
-        x[hexes] = X + dX
-        return None
-
-    def _project_vol(self, x: np.ndarray, g: int, aH: np.ndarray, scale=None, accumulate: bool = False):
-        """Volume constraint ``det F_centre - 1`` of the cubes of group ``g``."""
-        idx, hexes, W = self._gidx[g], self._gnodes[g], self._gw[g]
-        X = x[hexes]
-        J, gH = _volume_terms(X, self.h)                                                # (n,), (n, 8, 3)
-        WgH = W * gH
-        a = aH[idx]
-        n = len(idx)
-        dH = (1.0 - J - a * self._lamH[idx]) / (np.einsum("ij,ij->i", WgH.reshape(n, 24), gH.reshape(n, 24)) + a)
-        if scale is not None:
-            dH = dH * scale[idx]
-        self._lamH[idx] += dH
-        dX = WgH * dH[:, None, None]
-        if accumulate:
-            return hexes, dX
-        x[hexes] = X + dX
-        return None
-
-    def _project_dist(self, x: np.ndarray, g: int, alpha: np.ndarray, scale=None,
-                      accumulate: bool = False):
-        """Project the (node-disjoint) distance constraints of group ``g``."""
-        idx, p = self._gidx[g], self._gnodes[g]
-        d = x[p[:, 1]] - x[p[:, 0]]
-        ln = np.linalg.norm(d, axis=1)
-        n = d / np.maximum(ln, 1e-300)[:, None]
-        w0, w1 = self.w[p[:, 0]], self.w[p[:, 1]]
-        a = alpha[idx]
-        dl = (-(ln - self._rest_len[idx]) - a * self._lamC[idx]) / (w0 + w1 + a)
-        if scale is not None:
-            dl = dl * scale[idx]
-        self._lamC[idx] += dl
-        corr = n * dl[:, None]
-        if accumulate:
-            return p, np.stack([-w0[:, None] * corr, w1[:, None] * corr], axis=1)
-        x[p[:, 0]] -= w0[:, None] * corr
-        x[p[:, 1]] += w1[:, None] * corr
-        return None
-
-    def _iteration(self, x: np.ndarray, a_t) -> None:
-        """One solver iteration over all constraints (in place on ``x``)."""
-        project = {"distance": self._project_dist, "neohookean": self._project_nh,
-                   "corotational": self._project_corot}[self.constraints]
-        if self.constraints == "corotational":
-            self._update_rotations(x)
-        if self.kernel == "numba":
-            from .xpbd_jit import nh_sweep
-
-            nh_sweep(x, self._hexes64, self._order, self.w, self._lamD, self._lamH, a_t[0], a_t[1],
-                     self._gamma, L_REF, DN_CENTRE, self.h)
-            return
-        if self.gauss_seidel:
-            for g in range(len(self._gidx) - 1):
-                project(x, g, *a_t)
-            return
-        nodes, dX = project(x, len(self._gidx) - 1, *a_t, scale=self._jac, accumulate=True)
-        _scatter_add(x, nodes, dX)
-
-    def _scaled_compliance(self, ds: float):
-        if self.constraints != "distance":
-            return (self._alphaD / ds**2, self._alphaH / ds**2)
-        return (self._alpha / ds**2,)
-
-    def _apply_multipliers(self, x: np.ndarray, at: np.ndarray) -> None:
-        """Warm start: add ``M^-1 grad C^T lam`` of the stored multipliers, gradients at ``at``."""
-        if self.constraints == "corotational":
-            hexes = self.model.hexes
-            _, gH = _volume_terms(at[hexes], self.h)
-            dX = self.w[hexes][..., None] * (np.matmul(S_REF, self._lamD) * (1.0 / self.h)
-                                             + gH * self._lamH[:, None, None])
-            nodes = hexes
-        elif self.constraints != "distance":
-            hexes = self.model.hexes
-            _, gD, _, gH = neohookean_terms(at[hexes], self.h)
-            dX = self.w[hexes][..., None] * (gD * self._lamD[:, None, None] + gH * self._lamH[:, None, None])
-            nodes = hexes
-        else:
-            p = self._pairs
-            d = at[p[:, 1]] - at[p[:, 0]]
-            n = d / np.linalg.norm(d, axis=1)[:, None]
-            corr = n * self._lamC[:, None]
-            dX = np.stack([-self.w[p[:, 0]][:, None] * corr, self.w[p[:, 1]][:, None] * corr], axis=1)
-            nodes = p
-        _scatter_add(x, nodes, dX)
-
-    def _reset_multipliers(self) -> None:
-        for name in ("_lamD", "_lamH", "_lamC"):
-            if hasattr(self, name):
-                getattr(self, name)[:] = 0.0
+        """Energy scale (J) of the runaway test: ``max(initial kinetic + elastic, M |g| diameter)``."""
 
     # ------------------------------------------------------------------ time stepping
     def substep(self, ds: float) -> None:
-        """Advance by one substep of ``ds`` seconds (Algorithm 1)."""
+        """Advance by one substep (Algorithm 1).
+
+        Parameters
+        ----------
+        ds : float
+            Substep length, s.
+        """
         x_prev = self._x
         free = ~self.fixed_mask
         x = x_prev + ds * self._v
         x[free] += ds * ds * self.gravity
-        a_t = self._scaled_compliance(ds)
-        if self.constraints == "corotational":
-            self._block_inverse(ds)
+        cs = self.constraint_set
+        a_t = cs.compliance(ds)
         if self.warm_start:
-            self._apply_multipliers(x, x_prev)
+            cs.apply_multipliers(x, x_prev)
         else:
-            self._reset_multipliers()
+            cs.reset_multipliers()
         for _ in range(self.iterations):
-            self._iteration(x, a_t)
+            cs.iterate(x, a_t, gauss_seidel=self.gauss_seidel, kernel=self.kernel)
         v = (x - x_prev) / ds
         if self.damping > 0.0:
             v /= 1.0 + self.damping * ds
         self._x, self._v = x, v
 
     def step(self) -> XPBDState:
-        """Advance one frame step ``dt`` (``substeps`` substeps) and return the new state.
+        """Advance one frame step ``dt`` (``substeps`` substeps).
+
+        Returns
+        -------
+        XPBDState
+            The new state (copies).
 
         Raises
         ------
@@ -414,8 +230,14 @@ class XPBDSolver:
         return 0.4 * self.model.h / float(np.median(np.sqrt(mu / rho)))
 
     def energy_growth(self) -> float:
-        """``(E_total - E_total(t=0)) / energy_scale`` now (dimensionless; XPBD should keep it
-        <= ~0 up to the work of gravity, which is bounded by one ``energy_scale``)."""
+        """Energy created since the start, relative to :attr:`energy_scale`.
+
+        Returns
+        -------
+        float
+            ``(E_total - E_total(t=0)) / energy_scale``, dimensionless (XPBD should keep it <= ~0 up
+            to the work of gravity, which is bounded by one ``energy_scale``).
+        """
         return (self.energy().total - self._energy0) / self.energy_scale
 
     @property
@@ -425,7 +247,20 @@ class XPBDSolver:
                          velocities=self._v.copy())
 
     def run(self, n_steps: int, *, progress: bool = False) -> Iterator[XPBDState]:
-        """Yield the current state, then the state after each of ``n_steps`` steps."""
+        """Yield the current state, then the state after each of ``n_steps`` steps.
+
+        Parameters
+        ----------
+        n_steps : int
+            Frame steps to take (>= 0).
+        progress : bool
+            Show a progress bar on stderr (needs tqdm).
+
+        Yields
+        ------
+        XPBDState
+            ``n_steps + 1`` states (copies).
+        """
         n_steps = positive_int(n_steps, "n_steps", minimum=0)
         yield self.state
         bar = None
@@ -447,40 +282,50 @@ class XPBDSolver:
             yield self.step()
 
     # ------------------------------------------------------------------ diagnostics
-    def constraint_values(self, positions=None) -> dict:
-        """Constraint values at ``positions`` (m, 3) metres (default: current).
+    def constraint_values(self, positions: ArrayLike | None = None) -> dict:
+        """Constraint values at ``positions``.
 
-        Returns ``{"C_D": (n,), "C_H": (n,)}`` (neohookean: ``C_D = sqrt(mean |F|^2)``,
-        ``C_H = det F - gamma``; corotational: ``C_D = |S (X - R X_ref)| / h``, ``C_H = det F - 1``)
-        or ``{"C": (k,)}`` (distance; ``|x_j - x_i| - L``)."""
-        x = self._x if positions is None else as_points(positions, "positions")
-        if self.constraints == "corotational":
-            X = x[self.model.hexes]
-            F = centre_F(X, self.h)
-            CD = corotational_terms(X, self.h, polar_rotation(F))
-            return {"C_D": np.sqrt(np.einsum("nij,nij->n", CD, CD)), "C_H": np.linalg.det(F) - 1.0}
-        if self.constraints != "distance":
-            CD, _, J, _ = neohookean_terms(x[self.model.hexes], self.h)
-            return {"C_D": CD, "C_H": J - self._gamma}
-        p = self._pairs
-        return {"C": np.linalg.norm(x[p[:, 1]] - x[p[:, 0]], axis=1) - self._rest_len}
+        Parameters
+        ----------
+        positions : array_like, shape (m, 3), optional
+            Node positions, m (default: current).
 
-    def elastic_energy(self, positions=None) -> float:
-        """Elastic energy of the constraints in J, zero at rest:
-        neohookean ``sum V [mu/2 (C_D^2 - 3) + lam_nh/2 (C_H^2 - (mu/lam_nh)^2)]``;
-        corotational ``sum V [mu C_D^2 + lambda/2 C_H^2]``; distance ``sum k/2 C^2``."""
-        c = self.constraint_values(positions)
-        if self.constraints == "corotational":
-            return float(np.sum(c["C_D"] ** 2 / (2 * self._alphaD) + c["C_H"] ** 2 / (2 * self._alphaH)))
-        if self.constraints != "distance":
-            rest_H = (1.0 - self._gamma) ** 2
-            return float(np.sum((c["C_D"] ** 2 - 3.0) / (2 * self._alphaD)
-                                + (c["C_H"] ** 2 - rest_H) / (2 * self._alphaH)))
-        return float(np.sum(c["C"] ** 2 / (2 * self._alpha)))
+        Returns
+        -------
+        dict
+            By constraint kind: :meth:`~sc_fem.dynamics.xpbd_constraints.ConstraintSet.values`.
+        """
+        return self.constraint_set.values(self._x if positions is None else as_points(positions, "positions"))
+
+    def elastic_energy(self, positions: ArrayLike | None = None) -> float:
+        """Elastic energy of the constraints at ``positions``, zero at rest
+        (:meth:`~sc_fem.dynamics.xpbd_constraints.ConstraintSet.elastic_energy`).
+
+        Parameters
+        ----------
+        positions : array_like, shape (m, 3), optional
+            Node positions, m (default: current).
+
+        Returns
+        -------
+        float
+            Elastic energy, J.
+        """
+        return self.constraint_set.elastic_energy(self._x if positions is None else as_points(positions, "positions"))
 
     def energy(self, state: XPBDState | None = None) -> XPBDEnergy:
-        """Kinetic + gravity potential (relative to rest) + elastic energy, J (of the current state,
-        computed once per state: :meth:`step` evaluates it for its blow-up check)."""
+        """Kinetic + gravity potential (relative to rest) + elastic energy.
+
+        Parameters
+        ----------
+        state : XPBDState, optional
+            Default: the current state (computed once per state; :meth:`step` evaluates it).
+
+        Returns
+        -------
+        XPBDEnergy
+            By kind, J.
+        """
         if state is None and self._energy_cache[0] is self._x:
             return self._energy_cache[1]
         e = self._energy_of(state)
@@ -496,13 +341,37 @@ class XPBDSolver:
         return XPBDEnergy(kinetic=kin, gravity=grav, elastic=self.elastic_energy(x))
 
 
-def simulate_xpbd(model: CubeModel, dt: float, n_steps: int, *, substeps: int = 10, iterations: int = 1,
-                  constraints: str = "neohookean", gravity=(0.0, 0.0, -9.81), fixed_nodes=None,
-                  damping: float = 0.0, gauss_seidel: bool = True, warm_start: bool = False,
-                  progress: bool = False, **kw) -> Iterator[XPBDState]:
+def simulate_xpbd(model: CubeModel, dt: float, n_steps: int, *, substeps: int = XPBDOptions.substeps,
+                  iterations: int = XPBDOptions.iterations, constraints: str = XPBDOptions.constraints,
+                  gravity: ArrayLike = DOWN, fixed_nodes: ArrayLike | None = None, damping: float = XPBDOptions.damping,
+                  gauss_seidel: bool = True, warm_start: bool = False, progress: bool = False,
+                  **kw: Any) -> Iterator[XPBDState]:
     """Generator of XPBD states: the initial state (t = 0) then ``n_steps`` steps of ``dt`` s.
 
-    See :class:`XPBDSolver` for the parameters."""
+    The common driver runs XPBD like the other methods instead
+    (:func:`~sc_fem.dynamics.driver.make_integrator` ``("xpbd", ...)``,
+    :func:`~sc_fem.dynamics.driver.simulate`), with its states and energy accounting.
+
+    Parameters
+    ----------
+    model : CubeModel
+    dt : float
+        Frame step, s.
+    n_steps : int
+        Frame steps after the initial state.
+    substeps, iterations, constraints, gravity, fixed_nodes, damping, gauss_seidel, warm_start
+        As :class:`XPBDSolver` (``gravity`` m/s^2, shape (3,); ``damping`` 1/s).
+    progress : bool
+        Show a progress bar on stderr (needs tqdm).
+    **kw
+        Further :class:`XPBDSolver` options (``relaxation``, ``max_energy_growth``, ``positions``,
+        ``velocities``, ``kernel``).
+
+    Yields
+    ------
+    XPBDState
+        ``n_steps + 1`` states.
+    """
     solver = XPBDSolver(model, dt, substeps=substeps, iterations=iterations, constraints=constraints,
                         gravity=gravity, fixed_nodes=fixed_nodes, damping=damping, gauss_seidel=gauss_seidel,
                         warm_start=warm_start, **kw)

@@ -1,22 +1,22 @@
-"""XPBD behind the common integrator interface, so the one driver (:func:`sc_fem.dynamics.simulate`,
-:func:`sc_fem.dynamics.record`) runs it like Newmark or central differences: the same
-:class:`~sc_fem.dynamics.State`, energy split, load work and blow-up check."""
+"""XPBD as a :class:`~sc_fem.dynamics.base.TimeIntegrator`, so the one driver
+(:func:`sc_fem.dynamics.simulate`, :func:`sc_fem.dynamics.record`) runs it like Newmark or central
+differences: the same :class:`~sc_fem.dynamics.State`, energy split, load work and blow-up check."""
 
 from __future__ import annotations
 
-import math
 import time as _time
 
 import numpy as np
 
+from ..errors import InputError
 from ..lattice.cubes import CubeModel
-from .base import Energy
-from .driver import State
-from .loads import Gravity, LoadSet
-from .xpbd import XPBDSolver
+from .base import TimeIntegrator
+from .loads import LoadSet
+from .state import Energy, State
+from .xpbd import XPBDOptions, XPBDSolver
 
 
-class XPBDIntegrator:
+class XPBDIntegrator(TimeIntegrator):
     """One ``dt`` step = ``substeps`` XPBD substeps of :class:`~sc_fem.dynamics.xpbd.XPBDSolver`.
 
     Parameters
@@ -26,26 +26,31 @@ class XPBDIntegrator:
         Frame step, s.
     fixed_nodes : array_like of int, optional
         Nodes held in place.
-    gravity : array_like, shape (3,)
-        m/s^2 (the only load XPBD takes).
+    loads : LoadSet, optional
+        Gravity only (the one load XPBD takes; default none).
     substeps, iterations, constraints, damping
-        See :class:`~sc_fem.dynamics.xpbd.XPBDSolver`.
+        See :class:`~sc_fem.dynamics.xpbd.XPBDSolver` (defaults :class:`~sc_fem.dynamics.xpbd.XPBDOptions`).
+    **solver_kw
+        Further options of :class:`~sc_fem.dynamics.xpbd.XPBDSolver` (``kernel``, ``warm_start``, ...).
     """
 
     name = "xpbd"
     implicit = False
-    contact = None
+    supports = frozenset({"substeps"})
+    steps_per_frame = 1
+    convergence_hint = "use more substeps"
 
-    def __init__(self, model: CubeModel, dt: float, *, fixed_nodes=None, gravity=(0.0, 0.0, 0.0),
-                 substeps: int = 20, iterations: int = 1, constraints: str = "neohookean",
-                 damping: float = 0.0) -> None:
+    def __init__(self, model: CubeModel, dt: float, *, fixed_nodes=None, loads: LoadSet | None = None,
+                 substeps: int = XPBDOptions.substeps, iterations: int = XPBDOptions.iterations,
+                 constraints: str = XPBDOptions.constraints, damping: float = XPBDOptions.damping,
+                 **solver_kw) -> None:
         t0 = _time.perf_counter()
-        self.solver = XPBDSolver(model, dt, substeps=substeps, iterations=iterations, constraints=constraints,
-                                 gravity=gravity, fixed_nodes=fixed_nodes, damping=damping)
-        self.model, self.dt = model, self.solver.dt
-        g = tuple(float(x) for x in self.solver.gravity)
-        self.loads = LoadSet(model, [Gravity(g)] if any(g) else [])
-        self.max_contact_depth = -math.inf
+        super().__init__(model, dt, fixed_nodes=fixed_nodes, loads=loads)
+        if self.loads.n_forces:
+            raise InputError("method 'xpbd' takes gravity only: no forces or pressures in its loads")
+        self.solver = XPBDSolver(model, self.dt, substeps=substeps, iterations=iterations, constraints=constraints,
+                                 gravity=self.loads.gravity, fixed_nodes=self.fixed_nodes, damping=damping,
+                                 **solver_kw)
         self.setup_seconds = _time.perf_counter() - t0
 
     @property
@@ -65,9 +70,14 @@ class XPBDIntegrator:
         return self.solver.energy()
 
     def step(self) -> State:
-        return self._as_state(self.solver.step())   # raises InstabilityError naming the too-long substep
+        st = self._as_state(self.solver.step())     # raises InstabilityError naming the too-long substep
+        self.time, self.n_steps = st.time, st.step
+        return st
 
     @property
     def dt_crit(self) -> float:
         """The frame step at which the substeps reach their rule-of-thumb limit, s."""
         return self.solver.substep_hint * self.solver.substeps
+
+    def blowup_hint(self) -> str:
+        return "use more substeps (or constraints='corotational')"

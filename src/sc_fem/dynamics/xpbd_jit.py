@@ -1,6 +1,6 @@
 """Compiled Gauss-Seidel sweep of the Neo-Hookean cube constraints (numba, optional).
 
-The numpy sweep (:meth:`sc_fem.dynamics.xpbd.XPBDSolver._project_nh`) handles one colour of
+The numpy sweep (:meth:`sc_fem.dynamics.xpbd_constraints.ConstraintSet._project_nh`) handles one colour of
 cubes per call -- ~25 array operations on a few hundred cubes, so on lattices of a few thousand
 cubes its time goes to numpy's per-call overhead, not to arithmetic (64 ms a frame against 18 ms compiled on the
 benchmark bar, ``benchmarks/xpbd.py``). This kernel does the same arithmetic cube after cube in

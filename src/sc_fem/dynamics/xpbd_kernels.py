@@ -8,7 +8,8 @@ import numpy as np
 from .._validate import as_indices
 from ..errors import BoundaryConditionError
 from ..lattice.cubes import HEX_CORNERS, CubeModel
-from .corotational import DN_CENTRE, centre_F, cofactor
+from .kinematics import DN_CENTRE, centre_F, cofactor
+
 
 def _reference_laplacian() -> np.ndarray:
     """``L_ab = int_unit cube grad N_a . grad N_b`` (8, 8), exact by 2x2x2 Gauss."""
@@ -99,7 +100,7 @@ def corotational_terms(X: np.ndarray, h: float, R: np.ndarray):
     h : float
         Rest edge, metres.
     R : ndarray, shape (n, 3, 3)
-        Rotation per cube (normally :func:`polar_rotation` of the centre ``F``).
+        Rotation per cube (normally :func:`~sc_fem.dynamics.kinematics.polar_rotation` of the centre ``F``).
 
     Returns
     -------

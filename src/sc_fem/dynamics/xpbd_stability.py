@@ -10,6 +10,7 @@ import numpy as np
 from .._validate import as_float_array, positive_scalar
 from ..errors import InputError, InstabilityError
 from ..lattice.cubes import CubeModel
+from .loads import DOWN
 from .xpbd import XPBDSolver
 
 
@@ -43,7 +44,7 @@ class StabilityRow:
 
 def stability_sweep(model: CubeModel, substep_sizes, *, duration: float = 0.5, frame_dt: float | None = None,
                     fixed_nodes=None, reference=None, constraints: str = "neohookean", iterations: int = 1,
-                    gravity=(0.0, 0.0, -9.81), **kw) -> list[StabilityRow]:
+                    gravity=DOWN, **kw) -> list[StabilityRow]:
     """XPBD released from rest under gravity for each substep length: energy growth, blow-up, error.
 
     Parameters

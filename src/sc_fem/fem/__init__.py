@@ -1,18 +1,16 @@
-"""Finite elements on the lattice: materials, hexahedral elements, sparse K/M assembly, boundary
-conditions, linear solvers, static and eigen solves, and the conforming tetrahedral reference."""
+"""Finite elements on the lattice: hexahedral elements (trilinear and higher-order cubes), sparse
+K/M assembly, linear solvers, static and eigen solves, and the conforming tetrahedral reference.
+(Materials: :mod:`sc_fem.material`; fixed nodes: :mod:`sc_fem.lattice.boundary`.)"""
 
 from .._lazy import lazy_getattr
 from .assemble import assemble  # bound eagerly: it shares its module's name
 
 _NAMES = {
-    "Material": ".material", "lame": ".material",
-    "Assembler": ".assemble",
-    "FixSpec": ".boundary", "parse_fix": ".boundary", "fixed_nodes": ".boundary",
-    "fixed_dofs": ".boundary", "read_vertex_file": ".boundary",
+    "Assembler": ".assemble", "HighOrderCubes": ".highorder", "HighOrderAssembler": ".highorder",
     "factorize": ".linsolve", "Factorization": ".linsolve",
     "solve_static": ".static", "StaticResult": ".static",
-    "ELEMENTS": ".elements", "DEFAULT_ELEMENT": ".elements",
-    "solve_eigen": ".eigen", "EigenResult": ".eigen", "EigenSolver": ".eigen", "EigenOptions": ".eigen",
+    "ELEMENTS": ".hexahedron", "DEFAULT_ELEMENT": ".hexahedron",
+    "solve_eigen": ".eigen", "EigenResult": ".eigen", "EigenSolver": ".eigen", "EigenOptions": ".options",
     "solve_reference": ".reference", "ReferenceSolution": ".reference",
 }
 __all__ = sorted([*_NAMES, "assemble"])

@@ -32,9 +32,11 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+from numpy.typing import ArrayLike
 
 from .._validate import as_float_array, as_indices
-from .elements import (CENTRE_RULE, DEFAULT_ELEMENT, check_element, cube_mass_chunks, cube_stiffness_chunks,
+from .generic import assemble_skfem
+from .elements import (DEFAULT_ELEMENT, check_element, cube_mass_chunks, cube_stiffness_chunks,
                        stiffness_chunks)
 from ..errors import InputError
 from ..lattice.cubes import HEX_CORNERS, CubeModel
@@ -129,7 +131,7 @@ class Assembler:
     order are the columns in increasing order.
     """
 
-    def __init__(self, model: CubeModel, element: str = DEFAULT_ELEMENT, *, fixed_dofs=None,
+    def __init__(self, model: CubeModel, element: str = DEFAULT_ELEMENT, *, fixed_dofs: ArrayLike | None = None,
                  cache_slots: bool | None = None, kernel: str = "auto") -> None:
         from .._jit import choose_kernel            # optional numba, imported on first use
 
@@ -281,7 +283,8 @@ class Assembler:
                 jit.add_at_masked(data, slot, vals.ravel(), keep.ravel())
         return sp.csr_matrix((data, self.indices, self.indptr), shape=self.shape, copy=False)
 
-    def stiffness(self, youngs=None, poisson=None, element_matrices=None) -> sp.csr_matrix:
+    def stiffness(self, youngs: ArrayLike | None = None, poisson: ArrayLike | None = None,
+                  element_matrices: ArrayLike | None = None) -> sp.csr_matrix:
         """Assemble ``K`` (N/m) on the stored pattern.
 
         Parameters
@@ -306,7 +309,7 @@ class Assembler:
                 raise InputError(f"element_matrices must have shape ({n}, 24, 24), got {km.shape}")
             flat = km.reshape(n, 576)
             return self._scatter(lambda s, e: flat[s:e], refill=True)
-        from .material import lame
+        from ..material import lame
 
         if youngs is None and poisson is None:
             # the model's partial-cube stiffness (finite-cell moments or fraction-scaled)
@@ -315,7 +318,7 @@ class Assembler:
         nu = self.model.poisson if poisson is None else _per_cube(poisson, "poisson", n)
         return self._scatter(stiffness_chunks(self.element, *lame(E, nu), self.model.h))
 
-    def mass(self, *, lumped: bool = False, masses=None) -> sp.csr_matrix:
+    def mass(self, *, lumped: bool = False, masses: ArrayLike | None = None) -> sp.csr_matrix:
         """Assemble ``M`` (kg).
 
         Parameters
@@ -327,6 +330,11 @@ class Assembler:
             ``m_e / 8`` in each direction.
         masses : array_like, shape (n,), optional
             Per-cube masses in kg; default ``model.mass`` (the voxelizer's sample mass).
+
+        Returns
+        -------
+        scipy.sparse.csr_matrix, shape :attr:`shape`
+            Mass matrix on the free DOFs, kg (diagonal when ``lumped``).
         """
         n = self.model.n_cubes
         mass = self.model.mass if masses is None else _per_cube(masses, "masses", n, scalar=False)
@@ -337,67 +345,42 @@ class Assembler:
 
     # ------------------------------------------------------------------ helpers
     def expand(self, u_free: np.ndarray) -> np.ndarray:
-        """Full node field ``(m, 3)`` (or ``(m, 3, k)``) from a free-DOF vector, zeros on fixed DOFs."""
+        """Full node field ``(m, 3)`` (or ``(m, 3, k)``) from a free-DOF vector, zeros on fixed DOFs.
+
+        Parameters
+        ----------
+        u_free : ndarray, shape (n_free,) or (n_free, k)
+            Values on the free DOFs :attr:`free_dofs` (e.g. displacements in metres).
+
+        Returns
+        -------
+        ndarray, shape (m, 3) or (m, 3, k)
+            The field per node and direction, same units and dtype as ``u_free``.
+        """
         u_free = np.asarray(u_free)
         out = np.zeros((3 * self.model.n_nodes,) + u_free.shape[1:], dtype=u_free.dtype)
         out[self.free_dofs] = u_free
         return out.reshape((self.model.n_nodes, 3) + u_free.shape[1:])
 
-    def restrict(self, f_nodes: np.ndarray) -> np.ndarray:
-        """Free-DOF vector from a node field of shape ``(m, 3)``."""
+    def restrict(self, f_nodes: ArrayLike) -> np.ndarray:
+        """Free-DOF vector from a node field of shape ``(m, 3)``.
+
+        Parameters
+        ----------
+        f_nodes : array_like, shape (m, 3) or (m, 3, k)
+            A field per node and direction (e.g. nodal forces in N).
+
+        Returns
+        -------
+        ndarray of float, shape (n_free,) or (n_free, k)
+            Its values on the free DOFs :attr:`free_dofs`, same units.
+        """
         f = np.asarray(f_nodes, dtype=float).reshape(3 * self.model.n_nodes, *np.shape(f_nodes)[2:])
         return f[self.free_dofs]
 
 
-# ---------------------------------------------------------------------------------------- skfem
-def _assemble_skfem(model: CubeModel, element: str, lumped: bool, free: np.ndarray):
-    from skfem import Basis, BilinearForm, ElementHex1, ElementVector, asm
-    from skfem.helpers import dot, trace
-    from skfem.models.elasticity import linear_elasticity
-
-    if element == "q1i":
-        raise InputError("method='skfem' supports element 'q1' and 'q1sri' (scikit-fem has no incompatible "
-                         "modes); use method='fast' for 'q1i'")
-    mesh = model.to_skfem(metres=True)
-    basis = Basis(mesh, ElementVector(ElementHex1()), intorder=3)
-    lam, mu = model.lame()
-    lam, mu = lam[:, None], mu[:, None]
-    if element == "q1":
-        K = asm(linear_elasticity(lam, mu), basis)
-    else:
-        @BilinearForm
-        def volumetric(u, v, w):
-            return (lam + 2.0 * mu / 3.0) * trace(u.grad) * trace(v.grad)
-
-        @BilinearForm
-        def deviatoric(u, v, w):
-            return mu * (2.0 * _ddot_sym(u.grad, v.grad) - (2.0 / 3.0) * trace(u.grad) * trace(v.grad))
-
-        one = Basis(mesh, ElementVector(ElementHex1()), quadrature=CENTRE_RULE)
-        K = asm(volumetric, one) + asm(deviatoric, basis)
-    rho = (model.mass / model.h**3)[:, None]
-
-    @BilinearForm
-    def mass_form(u, v, w):
-        return rho * dot(u, v)
-
-    M = asm(mass_form, basis)
-    if lumped:
-        M = sp.diags(np.asarray(M.sum(axis=1)).ravel())
-    K, M = sp.csr_matrix(K), sp.csr_matrix(M)
-    if not free.all():
-        idx = np.flatnonzero(free)
-        K, M = K[idx][:, idx], M[idx][:, idx]
-    return K.tocsr(), M.tocsr()
-
-
-def _ddot_sym(a, b):
-    """sym(a) : sym(b) for gradient arrays of shape (3, 3, ...)."""
-    return 0.5 * (np.einsum("ij...,ij...->...", a, b) + np.einsum("ij...,ji...->...", a, b))
-
-
 def assemble(model: CubeModel, element: str = DEFAULT_ELEMENT, *, lumped: bool = False,
-             fixed_dofs=None, method: str = "fast") -> tuple[sp.csr_matrix, sp.csr_matrix]:
+             fixed_dofs: ArrayLike | None = None, method: str = "fast") -> tuple[sp.csr_matrix, sp.csr_matrix]:
     """Stiffness and mass matrices of a cube lattice.
 
     Parameters
@@ -431,5 +414,5 @@ def assemble(model: CubeModel, element: str = DEFAULT_ELEMENT, *, lumped: bool =
         fixed = _check_fixed(fixed_dofs, model.n_dofs)
         free = np.ones(model.n_dofs, dtype=bool)
         free[fixed] = False
-        return _assemble_skfem(model, element, lumped, free)
+        return assemble_skfem(model, element, lumped, free)
     raise InputError(f"method must be 'fast' or 'skfem', got {method!r}")

@@ -20,6 +20,7 @@ import time
 
 import numpy as np
 import scipy.sparse as sp
+from numpy.typing import ArrayLike
 
 from ..errors import InputError, SolverError
 
@@ -55,6 +56,18 @@ def _singular_message(n: int, what: str) -> str:
 class Factorization:
     """A factorization of a sparse SPD matrix ``A`` (n x n).
 
+    Parameters
+    ----------
+    A : scipy.sparse matrix, shape (n, n)
+        Symmetric positive definite (e.g. a stiffness matrix in N/m); only symmetry is assumed.
+    backend : {"auto", "cholmod", "cholespy", "splu"}
+        ``"auto"``: the first installed of :data:`BACKENDS`.
+
+    Raises
+    ------
+    SolverError
+        The matrix is singular, not positive definite or has non-finite entries.
+
     Attributes
     ----------
     backend : str
@@ -65,7 +78,7 @@ class Factorization:
         Wall time of the factorization.
     """
 
-    def __init__(self, A, backend: str = "auto") -> None:
+    def __init__(self, A: sp.spmatrix, backend: str = "auto") -> None:
         if not sp.issparse(A):
             raise InputError(f"A must be a scipy.sparse matrix, got {type(A).__name__}")
         if A.ndim != 2 or A.shape[0] != A.shape[1] or A.shape[0] == 0:
@@ -118,16 +131,18 @@ class Factorization:
                 raise SolverError(_singular_message(n, "not positive definite"))
         self.seconds = time.perf_counter() - t0
 
-    def solve(self, b) -> np.ndarray:
+    def solve(self, b: ArrayLike) -> np.ndarray:
         """Solve ``A x = b``.
 
         Parameters
         ----------
         b : array_like, shape (n,) or (n, k)
+            Right-hand side(s) (e.g. forces in N).
 
         Returns
         -------
         ndarray, same shape as ``b``
+            The solution ``x`` (e.g. displacements in m).
         """
         b = np.asarray(b, dtype=np.float64)
         n = self.shape[0]
@@ -150,7 +165,7 @@ class Factorization:
         return f"Factorization({self.shape[0]}x{self.shape[1]}, backend={self.backend!r})"
 
 
-def factorize(A, backend: str | None = "auto") -> Factorization:
+def factorize(A: sp.spmatrix, backend: str | None = "auto") -> Factorization:
     """Factorize a sparse symmetric positive-definite matrix.
 
     Parameters

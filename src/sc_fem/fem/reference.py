@@ -19,9 +19,8 @@ import scipy.sparse as sp
 
 from ..errors import InputError, MeshError, ScFemError
 from ..geometry.mesh import load_mesh
+from ..units import GRAVITY
 
-GRAVITY = 9.81
-"""Standard gravity, m/s^2."""
 
 
 def _require(module: str):

@@ -16,19 +16,26 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Iterable
 
 import numpy as np
 import scipy.sparse as sp
+from numpy.typing import ArrayLike
 from scipy.sparse.csgraph import connected_components
 
 from .._validate import as_float_array
 from .assemble import Assembler
-from .boundary import fixed_dofs
-from .eigen import rigid_block
+from ..lattice.boundary import fixed_dofs
+from .rigid import rigid_block
 from .elements import DEFAULT_ELEMENT, check_element
+from .highorder import DEGREES, HighOrderAssembler
 from ..errors import BoundaryConditionError, InputError, SolverError
 from ..lattice.cubes import CubeModel
 from .linsolve import factorize
+
+if TYPE_CHECKING:
+    from ..lattice.boundary import Fix
+    from ..scene import Scene
 
 
 @dataclass(frozen=True, eq=False)
@@ -105,8 +112,10 @@ def held_parts(model: CubeModel, labels: np.ndarray, fixed: np.ndarray, n_parts:
     return ev[:, 0] > 1e-9 * np.maximum(ev[:, -1], 1e-300)
 
 
-def solve_static(model, *, element: str = DEFAULT_ELEMENT, fix=None, fix_vertices=None,
-                 forces=None, gravity=None, point_forces=None, points=None, mesh=None,
+def solve_static(model: CubeModel | Scene, *, element: str = DEFAULT_ELEMENT,
+                 fix: Iterable[Fix] | Fix | None = None, fix_vertices: ArrayLike | None = None,
+                 forces: ArrayLike | None = None, gravity: ArrayLike | None = None,
+                 point_forces: ArrayLike | None = None, points: ArrayLike | None = None, mesh: Any = None,
                  backend: str = "auto") -> StaticResult:
     """Static displacement of a cube lattice under load.
 
@@ -115,10 +124,12 @@ def solve_static(model, *, element: str = DEFAULT_ELEMENT, fix=None, fix_vertice
     model : CubeModel or Scene
         The lattice, or a :class:`~sc_fem.Scene` (then its fixed nodes and source mesh are used and
         ``fix``, ``fix_vertices``, ``points`` and ``mesh`` are not given).
-    element : {"q1i", "q1", "q1sri"}
-        Element type (default ``"q1i"``).
+    element : {"q1i", "q1", "q1sri", "q2", "q3"}
+        Element type (default ``"q1i"``); ``"q2"`` / ``"q3"``: degree-2 / 3 cubes
+        (:mod:`sc_fem.fem.highorder`, need the source mesh), loaded consistently (gravity through
+        their mass, point forces through their field).
     fix : str, FixSpec, callable or list of them, optional
-        Fixed nodes (see :func:`sc_fem.fem.boundary.fixed_nodes`), e.g. ``["x<0.01"]``.
+        Fixed nodes (see :func:`sc_fem.lattice.boundary.fixed_nodes`), e.g. ``["x<0.01"]``.
     fix_vertices : array_like of int, optional
         Indices of source-mesh vertices (of ``mesh``, or of ``points``) whose cubes are fixed.
     forces : array_like, shape (m, 3), optional
@@ -137,6 +148,8 @@ def solve_static(model, *, element: str = DEFAULT_ELEMENT, fix=None, fix_vertice
     Returns
     -------
     StaticResult
+        Node displacements (m), the displacements of ``points`` / the mesh vertices (m), the
+        applied forces (N), the residual and timings.
 
     Raises
     ------
@@ -162,20 +175,25 @@ def solve_static(model, *, element: str = DEFAULT_ELEMENT, fix=None, fix_vertice
         scene = Scene.from_model(model, source, fix=fix, fix_vertices=fix_vertices)
         report_points = source is not None
     model = scene.model
-    element = check_element(element)
+    higher = isinstance(element, str) and element.lower() in DEGREES
+    element = element.lower() if higher else check_element(element)
     m = model.n_nodes
     W = scene.W if report_points else None
 
     f = np.zeros((m, 3))
     if forces is not None:
         f += as_float_array(forces, "forces", (m, 3))
-    if gravity is not None:
-        g = as_float_array(gravity, "gravity", (3,))
-        f += model.node_masses()[:, None] * g[None, :]
+    g = None if gravity is None else as_float_array(gravity, "gravity", (3,))
+    pf = None
     if point_forces is not None:
         if W is None:
             raise InputError("point_forces needs points= (or mesh=) to say where the forces act")
-        f += scene.forces_to_nodes(as_float_array(point_forces, "point_forces", (W.shape[0], 3)))
+        pf = as_float_array(point_forces, "point_forces", (W.shape[0], 3))
+    f_corners = f.copy()                              # point forces at the cube corners only
+    if g is not None:
+        f += model.node_masses()[:, None] * g[None, :]
+    if pf is not None:
+        f += scene.forces_to_nodes(pf)
     fixed = scene.fixed_nodes
 
     # parts that are not held: error if loaded, pin if unloaded
@@ -205,7 +223,12 @@ def solve_static(model, *, element: str = DEFAULT_ELEMENT, fix=None, fix_vertice
                             element, "none", 0.0, t)
     all_fixed = np.union1d(fixed, floating)
     t0 = time.perf_counter()
-    asm = Assembler(model, element, fixed_dofs=fixed_dofs(all_fixed))
+    if higher:
+        asm = HighOrderAssembler(scene, element, fixed_nodes=all_fixed)
+        Wp = asm.cubes.W if (W is not None or pf is not None) else None
+        W = Wp if W is not None else None
+    else:
+        asm = Assembler(model, element, fixed_dofs=fixed_dofs(all_fixed))
     K = asm.stiffness()
     t["assemble"] = time.perf_counter() - t0
     if K.shape[0] == 0:
@@ -213,7 +236,14 @@ def solve_static(model, *, element: str = DEFAULT_ELEMENT, fix=None, fix_vertice
     fac = factorize(K, backend)
     t["factorize"] = fac.seconds
     t0 = time.perf_counter()
-    b = asm.restrict(f)
+    if higher:                          # consistent loads of the degree-p field
+        b = asm.restrict(f_corners)
+        if g is not None:
+            b = b + asm.mass() @ np.tile(g, asm.cubes.n_nodes)[asm.free_dofs]
+        if pf is not None:
+            b = b + (Wp.T @ pf).reshape(-1)[asm.free_dofs]
+    else:
+        b = asm.restrict(f)
     x = fac.solve(b)
     t["solve"] = time.perf_counter() - t0
     res = float(np.linalg.norm(K @ x - b) / max(np.linalg.norm(b), 1e-300))
@@ -221,5 +251,8 @@ def solve_static(model, *, element: str = DEFAULT_ELEMENT, fix=None, fix_vertice
         raise SolverError(f"the static solve did not converge (relative residual {res:.3g}); the stiffness "
                           "matrix is nearly singular -- is the model held in place?")
     u = asm.expand(x)
-    vu = None if W is None else np.asarray(W @ u)
+    if higher:
+        vu = None if W is None else asm.vertex_field(x, W)
+    else:
+        vu = None if W is None else np.asarray(W @ u)
     return StaticResult(u, vu, f, fixed, len(floating), element, fac.backend, res, t)

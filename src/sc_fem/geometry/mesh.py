@@ -11,11 +11,14 @@ from __future__ import annotations
 import hashlib
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..errors import MeshError, MeshFileError
+
+if TYPE_CHECKING:
+    import trimesh
 
 BUILTIN_PREFIX = "builtin:"
 
@@ -26,7 +29,7 @@ _VOLUME_FACES = {
 }
 
 
-def load_mesh(source: Any, *, name: str | None = None):
+def load_mesh(source: Any, *, name: str | None = None) -> trimesh.Trimesh:
     """Load a surface mesh or point cloud from anything reasonable.
 
     Parameters

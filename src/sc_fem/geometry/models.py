@@ -5,9 +5,10 @@ name       what                                                               de
 =========  =================================================================  ===========================
 chair      plastic chair, 0.47 x 0.49 x 0.86 m: seat, tilted back, 4 legs     polypropylene: E 1.5 GPa,
            and a rail; parts overlap and intersect like an artist's model     nu 0.42, rho 905 kg/m^3
-bridge     cable-stayed bridge superstructure, 24 x 4.2 x 9 m: deck, 2 towers,   structural steel: E 200 GPa,
-           cross beams through the towers, 16 thin cables that stop 5 cm      nu 0.30, rho 7850 kg/m^3
-           short of the deck, isolated polygons and skinny triangles
+bridge     cable-stayed bridge superstructure, 24 x 4.2 x 9 m: deck,          structural steel: E 200 GPa,
+           2 towers, cross beams through the towers, 16 thin cables that      nu 0.30, rho 7850 kg/m^3
+           stop 5 cm short of the deck, isolated polygons and skinny
+           triangles
 rope       cube-rope: 20 overlapping cubes along x, 1.0 x 0.0525 x 0.0525 m   soft rubber: E 1 MPa,
            (19:1), each cube subdivided for a dense surface                   nu 0.45, rho 1100 kg/m^3
 beam       clean box cantilever 1.0 x 0.1 x 0.1 m along x (verification)      steel: E 200 GPa, nu 0.30,
@@ -27,7 +28,7 @@ from typing import Callable
 import numpy as np
 
 from ..errors import InputError
-from ..fem.material import Material
+from ..material import Material
 
 
 @dataclass(frozen=True)

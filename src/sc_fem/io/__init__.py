@@ -1,4 +1,5 @@
-"""Files and pictures: mode, model and animation files (versioned ``.npz``), and rendering."""
+"""Files and pictures: mode, model, animation and reconstruction files (versioned ``.npz``), rendering,
+exports (glTF, VTU, the web viewer), and the jobs the command line runs (one function per verb)."""
 
 from .._lazy import lazy_getattr
 
@@ -6,6 +7,11 @@ _NAMES = {
     "save_modes": ".modes", "load_modes": ".modes",
     "save_model": ".model", "load_model": ".model",
     "Animation": ".animation", "save_animation": ".animation", "load_animation": ".animation",
+    "save_reconstruction": ".reconstruction", "load_reconstruction": ".reconstruction",
+    "run_batch": ".batch", "BatchResult": ".batch", "modes_sheet": ".render",
+    "voxelize_to_file": ".voxelize", "precompute_modes": ".precompute", "play_modes": ".playback",
+    "simulate_to_file": ".simulation", "reconstruct_to_file": ".reconstruction", "export_to_file": ".export",
+    "run_demo": ".demo", "JobResult": ".report",
     "render": "",
 }
 __all__ = sorted(_NAMES)

@@ -39,6 +39,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .._atomic import save_npz_atomic
 from ._npz import read_versioned_npz
@@ -69,6 +70,8 @@ class Animation:
         Free-form provenance (JSON-serialisable).
     curves : ndarray, shape (T, C, P, 3), or None
         Optional curves on the surface (model units), None if the file has none.
+    lattice : LatticeTrack or None
+        The cube lattice's node motion behind the animation, None if the file has none.
     """
 
     faces: np.ndarray
@@ -82,6 +85,7 @@ class Animation:
 
     @property
     def n_frames(self) -> int:
+        """Number of frames ``T``."""
         return len(self.times)
 
 
@@ -170,11 +174,34 @@ _RESERVED = {"format_version", "kind", "faces", "rest_vertices", "times", "posit
              "meta_json"}
 
 
-def save_animation(path, *, faces, rest_vertices, times, positions, energy=None, meta=None,
+def save_animation(path: str | Path, *, faces: ArrayLike, rest_vertices: ArrayLike, times: ArrayLike,
+                   positions: ArrayLike, energy: ArrayLike | None = None, meta: dict | None = None,
                    extra: dict | None = None) -> Path:
-    """Write an animation ``.npz`` atomically (temp file + rename); returns the path.
+    """Write an animation ``.npz`` atomically (temp file + rename).
 
-    ``extra`` holds further named arrays (e.g. ``curves`` of shape (T, C, P, 3)).
+    Parameters
+    ----------
+    path : str or Path
+        Output file (``.npz``).
+    faces : array_like of int, shape (m, 3)
+        Triangles of the animated mesh.
+    rest_vertices : array_like, shape (n, 3)
+        Vertices at rest, model units.
+    times : array_like, shape (T,)
+        Frame times, s (increasing).
+    positions : array_like, shape (T, n, 3)
+        Vertex positions per frame, model units.
+    energy : array_like, shape (T,), optional
+        Total energy per frame, J (NaN where not computed).
+    meta : dict, optional
+        Provenance, JSON-serialisable.
+    extra : dict, optional
+        Further named arrays (e.g. ``curves`` of shape (T, C, P, 3)).
+
+    Returns
+    -------
+    Path
+        The file written.
     """
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     rest = as_float_array(rest_vertices, "rest_vertices", (-1, 3))
@@ -198,8 +225,17 @@ def save_animation(path, *, faces, rest_vertices, times, positions, energy=None,
     )
 
 
-def load_animation(path) -> Animation:
+def load_animation(path: str | Path) -> Animation:
     """Read and validate an animation ``.npz``.
+
+    Parameters
+    ----------
+    path : str or Path
+        A file written by :func:`save_animation` (or ``sc-fem simulate``).
+
+    Returns
+    -------
+    Animation
 
     Raises
     ------

@@ -63,7 +63,9 @@ Limit: :data:`MAX_ANIMATION_TARGETS` frames (engines upload every target; subsam
 normal deltas -- the page drives signed weights itself, orients its camera by the up axis and
 converts to metres with ``scale_m_per_unit``.
 
-Positions, normals, UVs and morph targets are float32; indices uint32.
+Positions, normals, UVs and morph targets are float32; indices uint32. The document's buffer,
+material and morph targets are assembled by :mod:`sc_fem.io.asset`, the vertex normals computed by
+:mod:`sc_fem.io.normals`.
 """
 
 from __future__ import annotations
@@ -74,6 +76,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from .asset import _document
+from .normals import _Normals, _unit
 
 MAX_ANIMATION_TARGETS = 256
 """Frames of a vertex animation exported as morph targets (one target per frame)."""
@@ -85,160 +89,10 @@ LAYOUTS = ("engine", "viewer")
 """``engine``: +Y up, metres, two targets per mode with normal deltas (files); ``viewer``: the web
 viewer's model-axes, model-units, one-signed-target-per-mode document (see the module docstring)."""
 
-MATERIAL = {"name": "sc_fem default (dielectric)", "baseColorFactor": [0.7, 0.7, 0.7, 1.0],
-            "metallicFactor": 0.0, "roughnessFactor": 0.6, "doubleSided": True}
-"""The default PBR metallic-roughness material of every exported primitive."""
-
-CREASE_DEGREES = 60.0
-"""A vertex's normal takes the faces of the vertices sharing its position whose normal is within this of its own."""
-
 UP_TO_GLTF = {"z": ((1, 0, 0), (0, 0, 1), (0, -1, 0)),
               "y": ((1, 0, 0), (0, 1, 0), (0, 0, 1)),
               "x": ((0, -1, 0), (1, 0, 0), (0, 0, 1))}
 """Rotation ``R`` (rows: glTF X, Y, Z in model coordinates) turning the model's up axis onto +Y."""
-
-_FLOAT, _UINT = 5126, 5125                 # glTF componentType codes
-_ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
-
-
-class _Blob:
-    """One binary buffer and its views/accessors, built up as arrays are added."""
-
-    def __init__(self, gltf) -> None:
-        self.gltf, self.parts, self.offset = gltf, [], 0
-
-    def add(self, array: np.ndarray, kind: str, *, target: int | None = None, minmax: bool = False) -> int:
-        import pygltflib as g
-
-        data = np.ascontiguousarray(array)
-        raw = data.tobytes()
-        pad = (-len(raw)) % 4
-        self.gltf.bufferViews.append(g.BufferView(buffer=0, byteOffset=self.offset, byteLength=len(raw),
-                                                  target=target))
-        self.parts.append(raw + b"\x00" * pad)
-        self.offset += len(raw) + pad
-        comp = _UINT if data.dtype == np.uint32 else _FLOAT
-        count = data.shape[0]
-        acc = g.Accessor(bufferView=len(self.gltf.bufferViews) - 1, componentType=comp, count=int(count), type=kind)
-        if minmax:
-            flat = data.reshape(count, -1)
-            acc.min = [float(x) for x in flat.min(axis=0)]
-            acc.max = [float(x) for x in flat.max(axis=0)]
-        self.gltf.accessors.append(acc)
-        return len(self.gltf.accessors) - 1
-
-    def bytes(self) -> bytes:
-        return b"".join(self.parts)
-
-
-class _Normals:
-    """Vertex normals of a triangle mesh with fixed connectivity, for its rest and displaced shapes.
-
-    Area-weighted face normals summed at each vertex. Vertices that share a rest position (a mesh
-    split at UV seams, or at creases) also take the faces of their twins whose rest normal lies
-    within :data:`CREASE_DEGREES` of their own: a UV seam shows no shading seam and a crease stays
-    sharp. Which faces count is decided once, at rest, and used for every displaced shape, so
-    normal deltas are continuous.
-    """
-
-    def __init__(self, rest: np.ndarray, faces: np.ndarray) -> None:
-        rest = np.asarray(rest, dtype=float)
-        self.faces = faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-        n = len(rest)
-        _, group = np.unique(rest, axis=0, return_inverse=True)
-        group = group.ravel()
-        # every (vertex, corner) pair whose corner lies at the vertex's position
-        corner_v = faces.ravel()
-        order = np.argsort(group[corner_v], kind="stable")
-        per_group = np.bincount(group[corner_v], minlength=int(group.max()) + 1)
-        start = np.concatenate([[0], np.cumsum(per_group)[:-1]])
-        reps = per_group[group]
-        pair_v = np.repeat(np.arange(n), reps)
-        offset = np.arange(len(pair_v)) - np.repeat(np.cumsum(reps) - reps, reps)
-        pair_c = order[start[group][pair_v] + offset]
-        fn = self._face_normals(rest)
-        own = _unit(self._sum(fn, pair_v[corner_v[pair_c] == pair_v], (pair_c // 3)[corner_v[pair_c] == pair_v], n))
-        cos = np.einsum("ij,ij->i", _unit(fn[pair_c // 3]), own[pair_v])
-        keep = (corner_v[pair_c] == pair_v) | (cos >= np.cos(np.radians(CREASE_DEGREES)))
-        self.pair_v, self.pair_f, self.n = pair_v[keep], pair_c[keep] // 3, n
-
-    def _face_normals(self, v: np.ndarray) -> np.ndarray:
-        tri = v[self.faces]
-        return np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])     # area-weighted face normals
-
-    @staticmethod
-    def _sum(fn: np.ndarray, pair_v: np.ndarray, pair_f: np.ndarray, n: int) -> np.ndarray:
-        return np.column_stack([np.bincount(pair_v, weights=fn[pair_f, i], minlength=n) for i in range(3)])
-
-    def __call__(self, vertices: np.ndarray) -> np.ndarray:
-        """Unit vertex normals of ``vertices`` (same vertex order as the rest shape), shape (n, 3)."""
-        fn = self._face_normals(np.asarray(vertices, dtype=float))
-        return _unit(self._sum(fn, self.pair_v, self.pair_f, self.n), fallback=(0.0, 1.0, 0.0))
-
-
-def _unit(a: np.ndarray, fallback=None) -> np.ndarray:
-    length = np.linalg.norm(a, axis=1, keepdims=True)
-    out = a / np.where(length > 0, length, 1.0)
-    return out if fallback is None else np.where(length > 0, out, np.asarray(fallback, dtype=float))
-
-
-def _document(vertices, faces, extras, *, targets=(), normal_fn=None, normals=None, uv=None, weights=(),
-              times=None, anim_weights=None, target_normals: bool = True, name: str = "sc_fem"):
-    """A pygltflib GLTF2 with one mesh (and optionally one LINEAR weights animation).
-
-    ``vertices`` / ``targets`` are already in glTF axes and units; ``normal_fn(positions)`` gives
-    unit vertex normals (the rest ``NORMAL`` unless ``normals`` is given, and the targets' deltas).
-    """
-    import pygltflib as g
-
-    gltf = g.GLTF2(asset=g.Asset(version="2.0", generator="sc_fem"))
-    blob = _Blob(gltf)
-    vertices = np.asarray(vertices, dtype=float)
-    attrs = g.Attributes(POSITION=blob.add(vertices.astype(np.float32), "VEC3", target=_ARRAY_BUFFER, minmax=True))
-    rest_n = None
-    if len(faces):
-        rest_n = normal_fn(vertices)
-        written = rest_n if normals is None else normals
-        attrs.NORMAL = blob.add(written.astype(np.float32), "VEC3", target=_ARRAY_BUFFER)
-    if uv is not None:
-        attrs.TEXCOORD_0 = blob.add(np.asarray(uv, dtype=np.float32), "VEC2", target=_ARRAY_BUFFER)
-    gltf.materials.append(g.Material(
-        name=MATERIAL["name"], doubleSided=MATERIAL["doubleSided"],
-        pbrMetallicRoughness=g.PbrMetallicRoughness(baseColorFactor=list(MATERIAL["baseColorFactor"]),
-                                                    metallicFactor=MATERIAL["metallicFactor"],
-                                                    roughnessFactor=MATERIAL["roughnessFactor"])))
-    prim = g.Primitive(attributes=attrs, mode=4 if len(faces) else 0, material=0)
-    if len(faces):
-        prim.indices = blob.add(np.asarray(faces, dtype=np.uint32).ravel(), "SCALAR", target=_ELEMENT_ARRAY_BUFFER)
-    prim.targets = []
-    for d in targets:
-        d = np.asarray(d, dtype=float)
-        tgt = {"POSITION": blob.add(d.astype(np.float32), "VEC3", target=_ARRAY_BUFFER, minmax=True)}
-        if rest_n is not None and target_normals:
-            tgt["NORMAL"] = blob.add((normal_fn(vertices + d) - rest_n).astype(np.float32), "VEC3",
-                                     target=_ARRAY_BUFFER)
-        prim.targets.append(tgt)
-    if not prim.targets:
-        prim.targets = None
-    mesh = g.Mesh(name=name, primitives=[prim], extras={"targetNames": list(extras.get("target_names", [])),
-                                                        "sc_fem": extras})
-    if len(targets):
-        mesh.weights = [float(w) for w in weights]
-    gltf.meshes.append(mesh)
-    gltf.nodes.append(g.Node(name=name, mesh=0))
-    gltf.scenes.append(g.Scene(nodes=[0]))
-    gltf.scene = 0
-    if times is not None:
-        t_acc = blob.add(np.asarray(times, dtype=np.float32), "SCALAR", minmax=True)
-        w_acc = blob.add(np.asarray(anim_weights, dtype=np.float32).ravel(), "SCALAR")
-        gltf.animations.append(g.Animation(
-            name=f"{name} playback",
-            samplers=[g.AnimationSampler(input=t_acc, output=w_acc, interpolation="LINEAR")],
-            channels=[g.AnimationChannel(sampler=0, target=g.AnimationChannelTarget(node=0, path="weights"))]))
-    data = blob.bytes()
-    gltf.buffers.append(g.Buffer(byteLength=len(data)))
-    gltf.set_binary_blob(data)
-    return gltf
 
 
 def _load(source, what: str = "mode or animation file"):

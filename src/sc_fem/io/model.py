@@ -16,9 +16,22 @@ MODEL_FORMAT_VERSION = 1
 MODEL_KIND = "sc_fem.cubemodel"
 
 
-def save_model(model: CubeModel, path) -> Path:
+def save_model(model: CubeModel, path: str | Path) -> Path:
     """Write ``model`` atomically as ``.npz`` (see :func:`load_model`) or ``.vtu`` (hexahedra with
-    per-cube mass, E, nu, rho, component and body as cell data, node coordinates in model units)."""
+    per-cube mass, E, nu, rho, component and body as cell data, node coordinates in model units).
+
+    Parameters
+    ----------
+    model : CubeModel
+        The lattice.
+    path : str or Path
+        Output file, ``.npz`` or ``.vtu``.
+
+    Returns
+    -------
+    Path
+        The file written.
+    """
     path = Path(path)
     ext = path.suffix.lower()
     if ext == ".npz":
@@ -48,8 +61,18 @@ def save_model(model: CubeModel, path) -> Path:
     raise InputError(f"unsupported model output {path.name!r}: use .npz or .vtu (or .png for a picture)")
 
 
-def load_model(path) -> CubeModel:
-    """Read a model written by :func:`save_model` (``.npz``)."""
+def load_model(path: str | Path) -> CubeModel:
+    """Read a model written by :func:`save_model` (``.npz``).
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+
+    Returns
+    -------
+    CubeModel
+    """
     d = read_versioned_npz(path, kind=MODEL_KIND, version=MODEL_FORMAT_VERSION, what="cube-model file")
     return CubeModel.from_cells(d["cells"], origin=d["origin"], pitch=float(d["pitch"]), scale=float(d["scale"]),
                                 dims=d["dims"], mass=d["mass"], youngs=d["youngs"], poisson=d["poisson"],

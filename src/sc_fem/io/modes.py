@@ -46,7 +46,7 @@ import numpy as np
 from .._atomic import save_npz_atomic
 from ._npz import read_versioned_npz
 from ..errors import InputError, FileFormatError
-from ..modes.modal import ModalBasis
+from ..modes.basis import ModalBasis
 
 MODES_FORMAT_VERSION = 1
 MODES_KIND = "sc_fem.modes"
@@ -57,8 +57,21 @@ _REQUIRED = ("format_version", "kind", "vertices", "faces", "frequencies", "mode
 _LATTICE = ("cells", "origin", "pitch", "scale", "dims", "mass", "youngs", "poisson", "density", "node_modes")
 
 
-def save_modes(basis: ModalBasis, path) -> Path:
-    """Write ``basis`` to ``path`` (``.npz``, see the module docstring) atomically; returns the path."""
+def save_modes(basis: ModalBasis, path: str | Path) -> Path:
+    """Write ``basis`` to ``path`` (``.npz``, see the module docstring) atomically.
+
+    Parameters
+    ----------
+    basis : ModalBasis
+        The modes.
+    path : str or Path
+        Output file (``.npz``).
+
+    Returns
+    -------
+    Path
+        The file written.
+    """
     if not isinstance(basis, ModalBasis):
         raise InputError(f"basis must be a ModalBasis, got {type(basis).__name__}")
     path = Path(path)
@@ -182,7 +195,7 @@ def _check_arrays(d: dict, path) -> None:
             _fail(path, f"lattice_node_modes must be finite with shape ({k}, m, 3), got {nm.shape}")
 
 
-def load_modes(path) -> ModalBasis:
+def load_modes(path: str | Path) -> ModalBasis:
     """Read and validate a mode file.
 
     Parameters

@@ -17,9 +17,10 @@ from pathlib import Path
 import numpy as np
 
 from .._atomic import atomic_path
-from .._validate import as_float_array
+from .._validate import as_float_array, positive_int
 from ..errors import InputError, RenderError
 from ..lattice.cubes import CubeModel
+from ..modes.basis import ModalBasis
 
 # VTK_HEXAHEDRON corner order expressed in sc_fem's HEX_CORNERS indices
 _VTK_HEX_ORDER = np.array([0, 3, 6, 2, 1, 5, 7, 4])
@@ -270,3 +271,51 @@ def render_animation(frames: np.ndarray, faces: np.ndarray, path, *, fps: float 
         else:
             imageio.mimsave(str(tmp), images, duration=1.0 / fps, loop=0, format="GIF")
     return path
+
+
+def modes_sheet(basis: ModalBasis, path, *, n_modes: int = 6, columns: int | None = None,
+                amplitude: float = 0.08, window_size: tuple[int, int] | None = None, up: str = "z") -> Path:
+    """Write a PNG grid of the first mode shapes with their frequencies (pyvista off-screen).
+
+    Each panel shows the rest shape (grey, translucent) and the mode displaced so that its largest
+    vertex displacement is ``amplitude`` times the bounding-box diagonal, coloured by the mode's
+    displacement magnitude ``|phi|`` in m kg^-1/2 (per unit modal coordinate; colour bar per
+    panel), the fixed lattice nodes as red points, ``up`` drawn upward.
+    """
+    k = min(positive_int(n_modes, "n_modes"), basis.n_modes)
+    cols = columns or min(k, 3)
+    rows = int(np.ceil(k / cols))
+    size = window_size or (420 * cols, 380 * rows)
+    pvm = pv()
+    rest = np.asarray(basis.vertices, dtype=float)
+    diag = float(np.linalg.norm(np.ptp(rest, axis=0)))
+    p = pvm.Plotter(off_screen=True, shape=(rows, cols), window_size=tuple(size), border=False)
+    try:
+        for i in range(k):                                   # loop over modes (panels)
+            p.subplot(i // cols, i % cols)
+            p.set_background("white")
+            shape = np.asarray(basis.modes[i], dtype=float)
+            mag = np.linalg.norm(shape, axis=1)
+            s = amplitude * diag / max(float(mag.max()), 1e-300)
+            p.add_mesh(surface_polydata(rest, basis.faces), color="#bbbbbb", opacity=0.25)
+            moved = rest + s * shape
+            surf = surface_polydata(moved, basis.faces)
+            label = f"|phi{i}| m/kg^.5"                      # one bar per panel (bars are keyed by title)
+            surf[label] = mag
+            p.add_mesh(surf, scalars=label, cmap="viridis", point_size=4, render_points_as_spheres=True,
+                       clim=(0.0, max(float(mag.max()), 1e-300)),
+                       scalar_bar_args={"title": label, "vertical": True, "color": "black",
+                                        "position_x": 0.8, "position_y": 0.08, "height": 0.6, "width": 0.08,
+                                        "fmt": "%.2g", "n_labels": 3, "title_font_size": 11, "label_font_size": 10})
+            drawn = [rest, moved]
+            if basis.fixed_points is not None and len(basis.fixed_points):
+                p.add_points(np.asarray(basis.fixed_points), color="red", point_size=6,
+                             render_points_as_spheres=True)
+                drawn.append(basis.fixed_points)
+            tag = " (rigid)" if basis.rigid[i] else ""
+            held = "" if basis.fixed_points is None or not len(basis.fixed_points) else "; red: fixed nodes"
+            p.add_text(f"mode {i}: {basis.frequencies[i]:.4g} Hz{tag}{held}", font_size=9, color="black")
+            frame_camera(p, np.vstack(drawn), up, margin=0.15)
+        return write_png(p, path)
+    finally:
+        p.close()

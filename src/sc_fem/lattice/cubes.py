@@ -1,49 +1,29 @@
 """The Squashing Cubes lattice: occupied voxels as elastic cubes (:class:`CubeModel`).
 
-Corner order of ``hexes`` is scikit-fem's ``MeshHex`` order: with a cube's lowest
-corner at lattice index (i, j, k), its 8 nodes are the offsets ``HEX_CORNERS``
-
-    (0,0,0), (0,0,1), (0,1,0), (1,0,0), (0,1,1), (1,0,1), (1,1,0), (1,1,1)
-
-so ``MeshHex(nodes.T, hexes.T)`` is valid without reordering (see :meth:`CubeModel.to_skfem`).
-
-Geometry (``origin``, ``pitch``, ``nodes``) is in the source model's units; ``scale`` converts
-model units to metres, so the cube edge in metres is :attr:`CubeModel.h`. Masses are in kg,
-moduli in Pa, densities in kg/m^3.
+Corners follow scikit-fem's ``MeshHex`` order (:data:`~sc_fem.lattice.topology.HEX_CORNERS`), so
+``MeshHex(nodes.T, hexes.T)`` is valid without reordering (:meth:`CubeModel.to_skfem`). Geometry
+(``origin``, ``pitch``, ``nodes``) is in the source model's units; ``scale`` converts model units to
+metres, so the cube edge in metres is :attr:`CubeModel.h`. Masses in kg, moduli in Pa, densities
+in kg/m^3.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy import ndimage
+from numpy.typing import ArrayLike
 
 from .._validate import as_float_array, check_material, positive_scalar
 from ..errors import InputError
+from .topology import CONNECTIVITY, HEX_CORNERS, components, nodes_and_hexes, voxel_index  # noqa: F401
 
-HEX_CORNERS = np.array(
-    [[0, 0, 0], [0, 0, 1], [0, 1, 0], [1, 0, 0], [0, 1, 1], [1, 0, 1], [1, 1, 0], [1, 1, 1]],
-    dtype=np.int64,
-)
-"""Offsets (dx, dy, dz) of the 8 corners of a cube, in scikit-fem ``MeshHex`` order."""
+if TYPE_CHECKING:
+    from skfem import MeshHex
 
 STIFFNESS_MODES = ("full", "fraction", "moments")
 """How partly filled cubes are stiffened (:attr:`CubeModel.stiffness`)."""
-
-CONNECTIVITY = {"face": 1, "edge": 2, "vertex": 3}
-"""Neighbourhoods for connected components: cubes sharing a face (6-connected, default),
-an edge (18-connected) or a corner (26-connected)."""
-
-
-def voxel_index(points: np.ndarray, origin: np.ndarray, pitch: float, dims: np.ndarray) -> np.ndarray:
-    """Lattice cell (i, j, k) of each point, shape (n, 3) int64, clipped into the grid.
-
-    Cells are half-open ``[lo, lo + pitch)``, except that points on the upper faces of the grid
-    belong to the last cell.
-    """
-    return np.clip(np.floor((points - origin) / pitch).astype(np.int64), 0, np.asarray(dims) - 1)
-
 
 @dataclass(frozen=True, eq=False)
 class CubeModel:
@@ -133,10 +113,12 @@ class CubeModel:
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def from_cells(cls, cells, *, origin, pitch: float, mass, youngs, poisson, density,
-                   scale: float = 1.0, dims=None, connectivity: str = "face",
-                   info: dict | None = None, fraction=1.0, stiffness: str = "full",
-                   moments=None, piece=None, sites=None, site_piece=None) -> "CubeModel":
+    def from_cells(cls, cells: ArrayLike, *, origin: ArrayLike, pitch: float, mass: ArrayLike,
+                   youngs: ArrayLike, poisson: ArrayLike, density: ArrayLike,
+                   scale: float = 1.0, dims: ArrayLike | None = None, connectivity: str = "face",
+                   info: dict | None = None, fraction: ArrayLike = 1.0, stiffness: str = "full",
+                   moments: ArrayLike | None = None, piece: ArrayLike | None = None,
+                   sites: ArrayLike | None = None, site_piece: ArrayLike | None = None) -> "CubeModel":
         """Build a model from occupied lattice cells and per-cube properties.
 
         Parameters
@@ -166,6 +148,14 @@ class CubeModel:
             only between cubes of the same body.
         sites, site_piece : array_like, shapes (s, 3) and (s,), optional
             Points on the source surface and their bodies (see :meth:`piece_at`).
+        info : dict, optional
+            Provenance and statistics, stored (copied) as :attr:`info`.
+
+        Returns
+        -------
+        CubeModel
+            Cubes sorted lexicographically by cell (then body), with their nodes, hexes and
+            connected components.
         """
         cells = np.asarray(cells)
         if cells.ndim != 2 or cells.shape[1] != 3 or len(cells) == 0:
@@ -225,9 +215,9 @@ class CubeModel:
             a[order] for a in (cells, mass, youngs, poisson, density, fraction, piece))
         moments = None if moments is None else moments[order]
 
-        node_index, hexes = _nodes_and_hexes(cells, dims, piece)
+        node_index, hexes = nodes_and_hexes(cells, dims, piece)
         nodes = origin + pitch * node_index.astype(float)
-        component = _components(cells, dims, connectivity, piece)
+        component = components(cells, dims, connectivity, piece)
         return cls(origin=origin, pitch=pitch, scale=scale, dims=np.asarray(dims, dtype=np.int64),
                    cells=cells, mass=mass, youngs=youngs, poisson=poisson, density=density,
                    nodes=nodes, node_index=node_index, hexes=hexes, component=component, fraction=fraction,
@@ -235,11 +225,33 @@ class CubeModel:
                    piece=piece, sites=sites, site_piece=site_piece)
 
     @classmethod
-    def box(cls, shape, pitch: float, *, youngs: float = 200e9, poisson: float = 0.3,
-            density: float = 7850.0, origin=(0.0, 0.0, 0.0), scale: float = 1.0) -> "CubeModel":
+    def box(cls, shape: ArrayLike, pitch: float, *, youngs: float = 200e9, poisson: float = 0.3,
+            density: float = 7850.0, origin: ArrayLike = (0.0, 0.0, 0.0), scale: float = 1.0) -> "CubeModel":
         """A solid box of ``shape = (nx, ny, nz)`` cubes with mass ``density * h^3`` each.
 
         Handy for verification (cantilevers, patch tests) without any mesh.
+
+        Parameters
+        ----------
+        shape : array_like of int, shape (3,)
+            Number of cubes along x, y, z (each >= 1).
+        pitch : float
+            Cube edge, model units.
+        youngs : float
+            Young's modulus, Pa (default steel, 200 GPa).
+        poisson : float
+            Poisson's ratio.
+        density : float
+            Density, kg/m^3.
+        origin : array_like, shape (3,)
+            Lowest corner of the box, model units.
+        scale : float
+            Metres per model unit.
+
+        Returns
+        -------
+        CubeModel
+            ``nx * ny * nz`` full cubes of edge ``h = pitch * scale`` m.
         """
         shape = np.asarray(shape, dtype=np.int64)
         if shape.shape != (3,) or np.any(shape < 1):
@@ -292,8 +304,19 @@ class CubeModel:
         lin = np.ravel_multi_index(self.cells.T, self.dims)
         return bool(np.any(np.diff(lin) == 0))
 
-    def piece_at(self, points: np.ndarray) -> np.ndarray:
-        """Body of each point (n, 3), model units: that of the nearest site (all 0 without sites)."""
+    def piece_at(self, points: ArrayLike) -> np.ndarray:
+        """Body of each point (n, 3), model units: that of the nearest site (all 0 without sites).
+
+        Parameters
+        ----------
+        points : array_like, shape (n, 3)
+            Positions, model units.
+
+        Returns
+        -------
+        ndarray of int64, shape (n,)
+            Body (:attr:`piece` label) of each point.
+        """
         points = np.asarray(points, dtype=float).reshape(-1, 3)
         if self.sites is None or not len(self.sites):
             return np.zeros(len(points), np.int64)
@@ -322,21 +345,36 @@ class CubeModel:
 
         The effective values a one-pair-per-cube solver should use: the material's times
         ``fraction`` unless ``stiffness == "full"``; ``material=True``: the material's own.
+
+        Parameters
+        ----------
+        material : bool
+            Return the material's own Lame parameters, without the ``fraction`` scaling.
+
+        Returns
+        -------
+        lam, mu : ndarray, shape (n,)
+            First Lame parameter and shear modulus of each cube, Pa.
         """
-        from ..fem.material import lame
+        from ..material import lame
 
         lam, mu = lame(self.youngs, self.poisson)
         if material or self.stiffness == "full":
             return lam, mu
         return lam * self.fraction, mu * self.fraction
 
-    def node_masses(self, masses=None) -> np.ndarray:
+    def node_masses(self, masses: ArrayLike | None = None) -> np.ndarray:
         """Lumped node masses in kg, shape (m,): each cube gives 1/8 of its mass to each corner.
 
         Parameters
         ----------
         masses : array_like, shape (n,), optional
             Per-cube masses in kg; default :attr:`mass`.
+
+        Returns
+        -------
+        ndarray, shape (m,)
+            Mass lumped at each node, kg.
         """
         if masses is None:
             mass = self.mass
@@ -346,15 +384,37 @@ class CubeModel:
                 raise InputError(f"masses must have shape ({self.n_cubes},), got {mass.shape}")
         return np.bincount(self.hexes.ravel(), weights=np.repeat(mass / 8.0, 8), minlength=self.n_nodes)
 
-    def to_skfem(self, metres: bool = True):
-        """The lattice as a scikit-fem ``MeshHex`` (node coordinates in metres by default)."""
+    def to_skfem(self, metres: bool = True) -> MeshHex:
+        """The lattice as a scikit-fem ``MeshHex`` (node coordinates in metres by default).
+
+        Parameters
+        ----------
+        metres : bool
+            Node coordinates in metres (``True``) or in model units.
+
+        Returns
+        -------
+        skfem.MeshHex
+            The nodes and hexes (same numbering, :data:`HEX_CORNERS` order).
+        """
         from skfem import MeshHex
 
         p = self.nodes_m if metres else self.nodes
         return MeshHex(np.ascontiguousarray(p.T), np.ascontiguousarray(self.hexes.T))
 
-    def subset(self, mask) -> "CubeModel":
-        """A new model with only the cubes where ``mask`` (shape (n,) bool) is true; nodes renumbered."""
+    def subset(self, mask: ArrayLike) -> "CubeModel":
+        """A new model with only the cubes where ``mask`` (shape (n,) bool) is true; nodes renumbered.
+
+        Parameters
+        ----------
+        mask : array_like of bool, shape (n,)
+            Cubes to keep (at least one).
+
+        Returns
+        -------
+        CubeModel
+            The kept cubes with their properties; components relabelled.
+        """
         mask = np.asarray(mask, dtype=bool)
         if mask.shape != (self.n_cubes,):
             raise InputError(f"mask must have shape ({self.n_cubes},), got {mask.shape}")
@@ -368,69 +428,22 @@ class CubeModel:
                                     connectivity=self.connectivity, info=dict(self.info), piece=self.piece[mask],
                                     sites=self.sites, site_piece=self.site_piece)
 
-    def with_info(self, **kw) -> "CubeModel":
-        """A copy with ``info`` updated."""
+    def with_info(self, **kw: Any) -> "CubeModel":
+        """A copy with ``info`` updated.
+
+        Parameters
+        ----------
+        **kw
+            Entries to add to (or replace in) :attr:`info`.
+
+        Returns
+        -------
+        CubeModel
+            The same lattice (arrays shared) with the new ``info``.
+        """
         return replace(self, info={**self.info, **kw})
 
     def __repr__(self) -> str:
         return (f"CubeModel({self.n_cubes} cubes, {self.n_nodes} nodes, pitch={self.pitch:g} "
                 f"(h={self.h:g} m), dims={tuple(int(d) for d in self.dims)}, "
                 f"{self.n_components} component(s), mass={self.total_mass:g} kg)")
-
-
-def _nodes_and_hexes(cells: np.ndarray, dims: np.ndarray, piece: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unique corner nodes of the cubes and the (n, 8) connectivity, vectorized: a node is a
-    (grid corner, body) pair, so cubes of different bodies in one cell share no node."""
-    corners = cells[:, None, :] + HEX_CORNERS[None, :, :]          # (n, 8, 3)
-    ndims = np.asarray(dims, dtype=np.int64) + 1
-    lin = np.ravel_multi_index(corners.reshape(-1, 3).T, ndims)    # (8n,)
-    n_p = int(piece.max()) + 1 if len(piece) else 1
-    uniq, inverse = np.unique(lin * n_p + np.repeat(piece, 8), return_inverse=True)
-    node_index = np.stack(np.unravel_index(uniq // n_p, ndims), axis=1).astype(np.int64)
-    return node_index, inverse.reshape(-1, 8).astype(np.int64)
-
-
-def _piece_labels(cells: np.ndarray, dims: np.ndarray, connectivity: str, piece: np.ndarray) -> tuple[np.ndarray, int]:
-    """Connected components of cubes of the same body that are neighbours (graph on the sorted
-    (cell, body) keys; labels in order of each component's first cube, as ``ndimage.label``)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    n_p = int(piece.max()) + 1
-    dims = np.asarray(dims, dtype=np.int64)
-    key = np.ravel_multi_index(cells.T, dims) * n_p + piece            # sorted (from_cells sorts)
-    offs = np.argwhere(ndimage.generate_binary_structure(3, CONNECTIVITY[connectivity])) - 1
-    offs = offs[[tuple(o) > (0, 0, 0) for o in offs]]                  # each neighbour pair once
-    rows, cols = [], []
-    for o in offs:                                                     # 3, 9 or 13 offsets
-        nb = cells + o
-        ok = np.all((nb >= 0) & (nb < dims), axis=1)
-        k = np.ravel_multi_index(nb[ok].T, dims) * n_p + piece[ok]
-        at = np.minimum(np.searchsorted(key, k), len(key) - 1)
-        hit = key[at] == k
-        rows.append(np.flatnonzero(ok)[hit])
-        cols.append(at[hit])
-    r, c = np.concatenate(rows), np.concatenate(cols)
-    n_c, lab = connected_components(coo_matrix((np.ones(len(r)), (r, c)), shape=(len(cells),) * 2), directed=False)
-    first = np.full(n_c, len(cells))
-    np.minimum.at(first, lab, np.arange(len(cells)))
-    rank = np.empty(n_c, np.int64)
-    rank[np.argsort(first)] = np.arange(n_c)
-    return rank[lab], n_c
-
-
-def _components(cells: np.ndarray, dims: np.ndarray, connectivity: str, piece: np.ndarray) -> np.ndarray:
-    """Component label per cube, 0 = largest, by ``scipy.ndimage.label`` on the occupancy grid
-    (one body) or by neighbours of the same body (:func:`_piece_labels`)."""
-    if len(piece) and piece.max() > 0:
-        lab, n = _piece_labels(cells, dims, connectivity, piece)
-    else:
-        grid = np.zeros(tuple(int(d) for d in dims), dtype=bool)
-        grid[tuple(cells.T)] = True
-        structure = ndimage.generate_binary_structure(3, CONNECTIVITY[connectivity])
-        labels, n = ndimage.label(grid, structure=structure)
-        lab = labels[tuple(cells.T)] - 1
-    sizes = np.bincount(lab, minlength=n)
-    rank = np.empty(n, dtype=np.int64)
-    rank[np.argsort(-sizes, kind="stable")] = np.arange(n)
-    return rank[lab]

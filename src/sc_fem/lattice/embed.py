@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
+from numpy.typing import ArrayLike
 from scipy.spatial import cKDTree
 
 from .._validate import as_points
@@ -67,11 +68,25 @@ def _nearest_cube(model: CubeModel, pts: np.ndarray, among: np.ndarray) -> np.nd
     return cand[np.arange(len(pts)), np.argmin(d, axis=1)]
 
 
-def embedding(model: CubeModel, points, piece=None) -> Embedding:
+def embedding(model: CubeModel, points: ArrayLike, piece: ArrayLike | None = None) -> Embedding:
     """Locate ``points`` (n, 3), model units, in ``model``; see :class:`Embedding`.
 
     ``piece`` (n,) int: the body of each point, when known (default :meth:`CubeModel.piece_at`);
     it matters only where cells hold cubes of several bodies.
+
+    Parameters
+    ----------
+    model : CubeModel
+        The lattice.
+    points : array_like, shape (n, 3)
+        Positions in model units.
+    piece : array_like of int, shape (n,), optional
+        Body of each point.
+
+    Returns
+    -------
+    Embedding
+        ``W`` (n, n_nodes), the cube and local coordinates of each point, and the detached points.
     """
     pts = as_points(points, "points")
     dims = model.dims
@@ -124,12 +139,13 @@ def embedding(model: CubeModel, points, piece=None) -> Embedding:
     return Embedding(W=W, cube=cube, local=local, detached=detached, distance=distance)
 
 
-def embed(model: CubeModel, points, piece=None) -> sp.csr_matrix:
+def embed(model: CubeModel, points: ArrayLike, piece: ArrayLike | None = None) -> sp.csr_matrix:
     """Trilinear interpolation matrix W, shape (len(points), model.n_nodes).
 
     Parameters
     ----------
     model : CubeModel
+        The lattice.
     points : array_like, shape (n, 3)
         Positions in model units (e.g. the source mesh's vertices).
     piece : array_like of int, shape (n,), optional

@@ -140,11 +140,28 @@ class VoxelOptions:
 
     @classmethod
     def fields(cls) -> tuple[str, ...]:
-        """The option names, in declaration order."""
+        """The option names, in declaration order.
+
+        Returns
+        -------
+        tuple of str
+            The dataclass field names.
+        """
         return tuple(f.name for f in dataclasses.fields(cls))
 
     def replace(self, **changes: Any) -> "VoxelOptions":
-        """A copy with some fields changed; an unknown name is an :class:`~sc_fem.errors.InputError`."""
+        """A copy with some fields changed; an unknown name is an :class:`~sc_fem.errors.InputError`.
+
+        Parameters
+        ----------
+        **changes
+            New values of fields (see the class attributes), checked like the constructor's.
+
+        Returns
+        -------
+        VoxelOptions
+            The copy (``self`` when nothing changes).
+        """
         unknown = sorted(set(changes) - set(self.fields()))
         if unknown:
             raise InputError(f"unknown voxelize option(s) {', '.join(map(repr, unknown))}; "
@@ -153,7 +170,20 @@ class VoxelOptions:
 
     @classmethod
     def coerce(cls, options: "VoxelOptions | Mapping[str, Any] | None" = None, **changes: Any) -> "VoxelOptions":
-        """``options`` (a VoxelOptions, a mapping of its fields or None) with ``changes`` applied."""
+        """``options`` (a VoxelOptions, a mapping of its fields or None) with ``changes`` applied.
+
+        Parameters
+        ----------
+        options : VoxelOptions, mapping of str to value, or None
+            The base options (``None``: the defaults).
+        **changes
+            Fields overriding those of ``options``.
+
+        Returns
+        -------
+        VoxelOptions
+            The combined options.
+        """
         if options is None:
             base = cls()
         elif isinstance(options, cls):
@@ -165,7 +195,13 @@ class VoxelOptions:
         return base.replace(**changes)
 
     def changed(self) -> dict[str, Any]:
-        """The fields that differ from the defaults (for records and reprs)."""
+        """The fields that differ from the defaults (for records and reprs).
+
+        Returns
+        -------
+        dict of str to value
+            Field name to value, in declaration order.
+        """
         default = VoxelOptions()
         return {k: getattr(self, k) for k in self.fields() if getattr(self, k) is not getattr(default, k)
                 and not (_is_plain(getattr(self, k)) and getattr(self, k) == getattr(default, k))}

@@ -13,16 +13,16 @@ import numpy as np
 
 from ..errors import InputError
 from ..lattice.options import VoxelOptions
-from .modal import ModalBasis, _log, finish, solve_scene
+from ..scene import Scene
+from .basis import ModalBasis
 from .options import AutoResolution, ModalRequest
+from .solve import finish, log_stage, solve_scene
 
 
 def modal_auto(mesh, auto: AutoResolution, voxel: VoxelOptions, req: ModalRequest, *, fix, fix_vertices,
                timings: dict) -> ModalBasis:
     """``resolution="auto"``: solve grid after grid of ``auto.resolutions``, keeping only the last
     two; bake the chosen one. ``voxel`` and ``req`` are :func:`sc_fem.modal`'s other options."""
-    from ..scene import Scene
-
     if voxel.pitch is not None or voxel.resolution is not None:
         raise InputError("resolution='auto' chooses the grid; do not give a pitch or resolution in the voxel options")
     tol = auto.tolerance
@@ -33,7 +33,7 @@ def modal_auto(mesh, auto: AutoResolution, voxel: VoxelOptions, req: ModalReques
         scene = Scene.from_mesh(mesh, voxel, resolution=r, fix=fix, fix_vertices=fix_vertices)
         lattice = scene.model
         t_vox = time.perf_counter() - t0
-        _log(f"[auto] resolution {r}: {lattice.n_cubes} cubes, {lattice.n_dofs} DOFs", req.progress)
+        log_stage(f"[auto] resolution {r}: {lattice.n_cubes} cubes, {lattice.n_dofs} DOFs", req.progress)
         prev, cur = cur, None                                     # drop the grid before prev first
         cur = solve_scene(scene, req)
         cur.timings["voxelize"] = t_vox

@@ -8,11 +8,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .._validate import positive_int, positive_scalar
 from ..errors import InputError
 from ..fem.eigen import EigenOptions
 from ..fem.elements import DEFAULT_ELEMENT, check_element
+from ..fem.highorder import DEGREES
 
 DEFAULT_DAMPING_RATIO = 0.01
 """Damping ratio of every mode when no damping is given (1 % of critical)."""
@@ -63,17 +65,40 @@ class Damping:
 
     @classmethod
     def coerce(cls, value: Any) -> "Damping":
-        """``None`` (the default ratio), a Damping, or a ratio (scalar or one per mode)."""
+        """``None`` (the default ratio), a Damping, or a ratio (scalar or one per mode).
+
+        Parameters
+        ----------
+        value : Damping, float, sequence of float or None
+            The damping, or the ``ratio`` field (dimensionless), or ``None`` for the default.
+
+        Returns
+        -------
+        Damping
+            ``value`` itself when it is one, else a new ratio damping.
+        """
         if value is None:
             return cls()
         if isinstance(value, cls):
             return value
         return cls(ratio=value)
 
-    def ratios(self, omegas: np.ndarray) -> tuple[np.ndarray, dict]:
+    def ratios(self, omegas: ArrayLike) -> tuple[np.ndarray, dict]:
         """Damping ratio per mode, shape (k,), and the record stored with the modes.
 
         ``omegas`` (k,) are the angular frequencies, rad/s; rigid modes (0) get ``zeta = 0``.
+
+        Parameters
+        ----------
+        omegas : array_like, shape (k,)
+            Angular frequencies of the modes, rad/s.
+
+        Returns
+        -------
+        zeta : ndarray, shape (k,)
+            Damping ratio of each mode (dimensionless, 0 for rigid modes).
+        record : dict
+            ``{"kind": "ratio", "zeta": ...}`` or ``{"kind": "rayleigh", "alpha": ..., "beta": ...}``.
         """
         omegas = np.asarray(omegas, dtype=float)
         elastic = omegas > 0
@@ -151,7 +176,10 @@ class ModalRequest:
     progress: bool = False
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "element", check_element(self.element))
+        if not (isinstance(self.element, str) and self.element.lower() in DEGREES):
+            object.__setattr__(self, "element", check_element(self.element))
+        else:
+            object.__setattr__(self, "element", self.element.lower())
         if self.n_modes is not None:
             object.__setattr__(self, "n_modes", positive_int(self.n_modes, "n_modes"))
         if self.max_frequency is not None:

@@ -16,13 +16,13 @@ An impulse ``J`` (N s) on source vertex ``v`` adds ``phi_k(v) . J`` to each moda
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
+from numpy.typing import ArrayLike, DTypeLike
 
-from .._validate import as_float_array, positive_int, positive_scalar
+from .._validate import as_float_array, positive_scalar
 from ..errors import InputError
-from .modal import ModalBasis
+from .basis import ModalBasis
 
 
 def transition(omega: np.ndarray, zeta: np.ndarray, t) -> tuple[np.ndarray, ...]:
@@ -90,8 +90,8 @@ class ModalPlayer:
 
     Parameters
     ----------
-    basis : ModalBasis or path
-        Modes (a path is read with :func:`sc_fem.io.modes.load_modes`).
+    basis : ModalBasis
+        Modes (:func:`sc_fem.io.modes.load_modes` reads a mode file).
     dtype : numpy dtype
         Precision of the per-frame matrix-vector product (``float32`` by default, as stored).
 
@@ -103,11 +103,10 @@ class ModalPlayer:
         Current time, s.
     """
 
-    def __init__(self, basis, *, dtype=np.float32) -> None:
+    def __init__(self, basis: ModalBasis, *, dtype: DTypeLike = np.float32) -> None:
         if not isinstance(basis, ModalBasis):
-            from ..io.modes import load_modes
-
-            basis = load_modes(basis)
+            raise InputError(f"basis must be a ModalBasis (sc_fem.io.modes.load_modes reads a mode file), "
+                             f"got {type(basis).__name__}")
         self.basis = basis
         k, n = basis.n_modes, basis.n_vertices
         self.omega = np.asarray(basis.omegas, dtype=float)        # rigid modes have frequency 0
@@ -123,6 +122,7 @@ class ModalPlayer:
     # ------------------------------------------------------------------ excitation
     @property
     def n_modes(self) -> int:
+        """Number of modes ``k``."""
         return len(self.omega)
 
     def reset(self) -> None:
@@ -131,10 +131,22 @@ class ModalPlayer:
         self.v[:] = 0.0
         self.time = 0.0
 
-    def impulse(self, vertex: int, impulse) -> np.ndarray:
+    def impulse(self, vertex: int, impulse: ArrayLike) -> np.ndarray:
         """Apply an impulse ``J`` (N s, shape (3,)) at source vertex ``vertex``.
 
         Returns the modal velocity change, shape (k,): ``phi_k(vertex) . J``.
+
+        Parameters
+        ----------
+        vertex : int
+            Index of the source vertex, ``0 <= vertex < n``.
+        impulse : array_like, shape (3,)
+            The impulse ``J``, N s.
+
+        Returns
+        -------
+        ndarray, shape (k,)
+            Change of the modal velocities, m kg^1/2 / s (added to :attr:`v`).
         """
         n = self.basis.n_vertices
         if isinstance(vertex, bool) or not isinstance(vertex, (int, np.integer)) or not 0 <= vertex < n:
@@ -145,7 +157,15 @@ class ModalPlayer:
         return dv
 
     def excite(self, mode: int, amplitude: float = 0.01) -> None:
-        """Displace mode ``mode`` so its largest vertex displacement is ``amplitude`` (model units)."""
+        """Displace mode ``mode`` so its largest vertex displacement is ``amplitude`` (model units).
+
+        Parameters
+        ----------
+        mode : int
+            Index of the mode, ``0 <= mode < k``.
+        amplitude : float
+            Largest vertex displacement the mode gets, model units (added to the current state).
+        """
         k = self.n_modes
         if isinstance(mode, bool) or not isinstance(mode, (int, np.integer)) or not 0 <= mode < k:
             raise InputError(f"mode must be an integer in [0, {k}), got {mode!r}")
@@ -158,29 +178,82 @@ class ModalPlayer:
         self.q[mode] += amp * self.basis.scale / peak
 
     # ------------------------------------------------------------------ evaluation
-    def coordinates(self, times) -> np.ndarray:
-        """Modal coordinates at ``times`` after the current state (s, shape (T,)): shape (T, k). Exact."""
+    def coordinates(self, times: ArrayLike) -> np.ndarray:
+        """Modal coordinates at ``times`` after the current state (s, shape (T,)): shape (T, k). Exact.
+
+        Parameters
+        ----------
+        times : float or array_like, shape (T,)
+            Times after the current state, s (the state does not advance).
+
+        Returns
+        -------
+        ndarray, shape (T, k)
+            Modal coordinates, m kg^1/2.
+        """
         a, b, _, _ = transition(self.omega, self.zeta, np.atleast_1d(np.asarray(times, dtype=float)))
         return a * self.q[None, :] + b * self.v[None, :]
 
-    def displacements(self, q: np.ndarray) -> np.ndarray:
-        """Vertex displacements (n, 3) in model units for modal coordinates ``q`` (k,)."""
+    def displacements(self, q: ArrayLike) -> np.ndarray:
+        """Vertex displacements (n, 3) in model units for modal coordinates ``q`` (k,).
+
+        Parameters
+        ----------
+        q : array_like, shape (k,)
+            Modal coordinates, m kg^1/2.
+
+        Returns
+        -------
+        ndarray, shape (n, 3)
+            Vertex displacements, model units (in the player's ``dtype``).
+        """
         return (self._U @ np.asarray(q, dtype=self._U.dtype)).reshape(-1, 3)
 
-    def positions(self, q: np.ndarray | None = None) -> np.ndarray:
-        """Vertex positions (n, 3), model units, for ``q`` (default: the current state)."""
+    def positions(self, q: ArrayLike | None = None) -> np.ndarray:
+        """Vertex positions (n, 3), model units, for ``q`` (default: the current state).
+
+        Parameters
+        ----------
+        q : array_like, shape (k,), optional
+            Modal coordinates, m kg^1/2; default :attr:`q`.
+
+        Returns
+        -------
+        ndarray, shape (n, 3)
+            Rest positions plus the displacements, model units.
+        """
         return self.rest + self.displacements(self.q if q is None else q)
 
     def step(self, dt: float) -> np.ndarray:
-        """Advance the state exactly by ``dt`` seconds; returns the new vertex positions (n, 3)."""
+        """Advance the state exactly by ``dt`` seconds; returns the new vertex positions (n, 3).
+
+        Parameters
+        ----------
+        dt : float
+            Time step, s (>= 0; any size, the step is exact).
+
+        Returns
+        -------
+        ndarray, shape (n, 3)
+            Vertex positions after the step, model units.
+        """
         dt = positive_scalar(dt, "dt", allow_zero=True)
         a, b, c, d = transition(self.omega, self.zeta, dt)
         self.q, self.v = a * self.q + b * self.v, c * self.q + d * self.v
         self.time += dt
         return self.positions()
 
-    def frames(self, duration: float, fps: float = 30.0, *, dtype=np.float32) -> np.ndarray:
+    def frames(self, duration: float, fps: float = 30.0, *, dtype: DTypeLike = np.float32) -> np.ndarray:
         """Play ``duration`` seconds at ``fps`` from the current state (which advances).
+
+        Parameters
+        ----------
+        duration : float
+            Length of the playback, s.
+        fps : float
+            Frames per second.
+        dtype : numpy dtype
+            Precision of the returned positions.
 
         Returns
         -------
@@ -201,61 +274,23 @@ class ModalPlayer:
         return out
 
     def times(self, duration: float, fps: float = 30.0) -> np.ndarray:
-        """Frame times of :meth:`frames`, s, shape (T,), relative to the start."""
+        """Frame times of :meth:`frames`, s, shape (T,), relative to the start.
+
+        Parameters
+        ----------
+        duration : float
+            Length of the playback, s.
+        fps : float
+            Frames per second.
+
+        Returns
+        -------
+        ndarray, shape (T,)
+            ``arange(T) / fps`` with ``T = round(duration * fps) + 1``, s.
+        """
         fps = positive_scalar(fps, "fps")
         T = int(round(positive_scalar(duration, "duration") * fps)) + 1
         return np.arange(T) / fps
-
-
-# ---------------------------------------------------------------------------------------- pictures
-def modes_sheet(basis: ModalBasis, path, *, n_modes: int = 6, columns: int | None = None,
-                amplitude: float = 0.08, window_size: tuple[int, int] | None = None, up: str = "z") -> Path:
-    """Write a PNG grid of the first mode shapes with their frequencies (pyvista off-screen).
-
-    Each panel shows the rest shape (grey, translucent) and the mode displaced so that its largest
-    vertex displacement is ``amplitude`` times the bounding-box diagonal, coloured by the mode's
-    displacement magnitude ``|phi|`` in m kg^-1/2 (per unit modal coordinate; colour bar per
-    panel), the fixed lattice nodes as red points, ``up`` drawn upward.
-    """
-    from ..io.render import frame_camera, pv, surface_polydata, write_png
-
-    k = min(positive_int(n_modes, "n_modes"), basis.n_modes)
-    cols = columns or min(k, 3)
-    rows = int(np.ceil(k / cols))
-    size = window_size or (420 * cols, 380 * rows)
-    pvm = pv()
-    rest = np.asarray(basis.vertices, dtype=float)
-    diag = float(np.linalg.norm(np.ptp(rest, axis=0)))
-    p = pvm.Plotter(off_screen=True, shape=(rows, cols), window_size=tuple(size), border=False)
-    try:
-        for i in range(k):                                   # loop over modes (panels)
-            p.subplot(i // cols, i % cols)
-            p.set_background("white")
-            shape = np.asarray(basis.modes[i], dtype=float)
-            mag = np.linalg.norm(shape, axis=1)
-            s = amplitude * diag / max(float(mag.max()), 1e-300)
-            p.add_mesh(surface_polydata(rest, basis.faces), color="#bbbbbb", opacity=0.25)
-            moved = rest + s * shape
-            surf = surface_polydata(moved, basis.faces)
-            label = f"|phi{i}| m/kg^.5"                      # one bar per panel (bars are keyed by title)
-            surf[label] = mag
-            p.add_mesh(surf, scalars=label, cmap="viridis", point_size=4, render_points_as_spheres=True,
-                       clim=(0.0, max(float(mag.max()), 1e-300)),
-                       scalar_bar_args={"title": label, "vertical": True, "color": "black",
-                                        "position_x": 0.8, "position_y": 0.08, "height": 0.6, "width": 0.08,
-                                        "fmt": "%.2g", "n_labels": 3, "title_font_size": 11, "label_font_size": 10})
-            drawn = [rest, moved]
-            if basis.fixed_points is not None and len(basis.fixed_points):
-                p.add_points(np.asarray(basis.fixed_points), color="red", point_size=6,
-                             render_points_as_spheres=True)
-                drawn.append(basis.fixed_points)
-            tag = " (rigid)" if basis.rigid[i] else ""
-            held = "" if basis.fixed_points is None or not len(basis.fixed_points) else "; red: fixed nodes"
-            p.add_text(f"mode {i}: {basis.frequencies[i]:.4g} Hz{tag}{held}", font_size=9, color="black")
-            frame_camera(p, np.vstack(drawn), up, margin=0.15)
-        return write_png(p, path)
-    finally:
-        p.close()
 
 
 def playback_warnings(basis, frames: np.ndarray, fps: float, exaggerate: float = 1.0) -> list[str]:

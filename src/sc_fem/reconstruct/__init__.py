@@ -15,13 +15,14 @@ from .bspline import BSplineModel, bspline_baseline
 from .meshmap import curve_mesh_map, extract_curves, lattice_lines, mesh_vertices
 from .metrics import ReconstructionErrors, curve_diameter, errors
 from .param import parametrize
-from .pde import PDEModel, SearchResult, fit
-from .pipeline import Reconstruction, load_reconstruction, reconstruct_animation, save_reconstruction
+from .pde import PDEModel, fit
+from .pipeline import Reconstruction, reconstruct_animation
 from .rigid import RigidAlignment, RigidMotion, kabsch, remove_rigid
+from .search import SearchResult
 
 __all__ = [
     "BSplineModel", "PDEModel", "Reconstruction", "ReconstructionErrors", "RigidAlignment", "RigidMotion", "SearchResult",
     "basis", "bspline_baseline", "curve_diameter", "curve_mesh_map", "errors", "extract_curves", "fit",
     "kabsch", "lattice_lines", "mesh_vertices", "paper_scale", "parametrize", "pde_sign", "remove_rigid", "space_basis",
-    "time_basis", "reconstruct_animation", "save_reconstruction", "load_reconstruction",
+    "time_basis", "reconstruct_animation",
 ]

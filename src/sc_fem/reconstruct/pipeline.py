@@ -1,6 +1,6 @@
 """The reconstruction job on a vertex animation: extract (or read) curves, fit the PDE model at
 some frames, fit the B-spline baseline at the same frames, compare both at every frame in
-between -- and the ``.npz`` file that holds the result, with its reader.
+between. (The ``.npz`` file that holds the result: :mod:`sc_fem.io.reconstruction`.)
 
 Every result is judged (:attr:`Reconstruction.failures`): the PDE fit *fails* when an error is
 not finite, when its mean E_A over the evaluated frames exceeds :data:`MAX_MEAN_E_A` or its max
@@ -12,18 +12,13 @@ so; ``sc-fem reconstruct`` then exits 1.
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
 from .._validate import positive_int
 from ..errors import InputError
-
-RECON_KIND = "sc_fem.reconstruction"
-RECON_FORMAT_VERSION = 1
 
 MAX_MEAN_E_A = 0.02
 """A PDE fit whose mean E_A over the evaluated frames is above this (2 % of the curves' diameter;
@@ -130,9 +125,11 @@ class Reconstruction:
                 f"max E_M {self.E_M_bspline.max():.6f}" + ("" if self.ok else "; fit FAILED"))
 
 
-_ARRAYS = ("frames", "times", "fit_frames", "curves_reference", "curves_pde", "curves_bspline", "E_A_pde",
-           "E_M_pde", "E_A_bspline", "E_M_bspline", "coefficients", "u", "faces")
-_OPTIONAL = ("vertices_pde", "mesh_error_pde", "curve_vertex_index")
+ARRAYS = ("frames", "times", "fit_frames", "curves_reference", "curves_pde", "curves_bspline", "E_A_pde",
+          "E_M_pde", "E_A_bspline", "E_M_bspline", "coefficients", "u", "faces")
+"""The arrays every :class:`Reconstruction` has (and its file stores)."""
+OPTIONAL = ("vertices_pde", "mesh_error_pde", "curve_vertex_index")
+"""Arrays a :class:`Reconstruction` may lack (``None``; a file stores them when present)."""
 
 
 def reconstruct_animation(animation, fit_frames, *, n_curves: int = 8, n_points: int = 64, r=None, alpha=None,
@@ -144,8 +141,9 @@ def reconstruct_animation(animation, fit_frames, *, n_curves: int = 8, n_points:
 
     Parameters
     ----------
-    animation : sc_fem.Animation or path
-        A vertex animation (as written by ``sc-fem simulate``); its ``curves`` (T, C, P, 3) are used
+    animation : sc_fem.Animation
+        A vertex animation (:func:`sc_fem.io.animation.load_animation` reads the file that
+        ``sc-fem simulate`` writes); its ``curves`` (T, C, P, 3) are used
         when it has them, otherwise ``n_curves`` curves of ``n_points`` vertices are extracted along
         the rest principal axis and the mesh is rebuilt from them.
     fit_frames : array_like of int
@@ -176,14 +174,13 @@ def reconstruct_animation(animation, fit_frames, *, n_curves: int = 8, n_points:
         fit tried is kept); ``meta["segments"]`` and ``meta["pde_matches_bspline_at_fitted_frames"]`` say
         what happened.
     """
-    from ..io.animation import Animation, load_animation
     from .bspline import bspline_baseline
     from .meshmap import curve_mesh_map, curves_to_vertices, extract_curves
     from .metrics import errors
     from .pde import check_frame_indices
     from .segments import fit_segmented, max_segments
 
-    anim = animation if isinstance(animation, Animation) else load_animation(animation)
+    anim = animation
     fit_idx = check_frame_indices(np.asarray(fit_frames), anim.n_frames, name="fit_frames")
     frames = np.arange(fit_idx[0], fit_idx[-1] + 1)
     if segments != "auto":
@@ -254,7 +251,7 @@ def reconstruct_animation(animation, fit_frames, *, n_curves: int = 8, n_points:
               "PDE constants, paper's count (32 per curve piece)": 32 * int(model.model.n_curves),
               "B-spline scalars": int(bs.n_parameters), "B-spline control points (paper's count)": int(bs.n_control_points),
               "reference scalars (curve points x 3 x frames)": int(ref.size)}
-    meta = {"source": str(anim.meta.get("source", "")) if isinstance(animation, Animation) else str(animation),
+    meta = {"source": str(anim.meta.get("source", "")),
             "timings_s": {"pde": t_pde, "bspline": t_bs}, "counts": counts, "criterion": criterion,
             "rigid_interpolation": rigid_interpolation, "remove_rigid": bool(remove_rigid),
             "parametrization": model.parametrization, "curves_extracted": idx is not None, "offset": off,
@@ -308,40 +305,6 @@ def _surface_points(anim, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray
     rest = np.einsum("nk,nkd->nd", bary, tri[face])
     moving = np.einsum("nk,tnkd->tnd", bary, np.asarray(anim.positions, dtype=float)[:, faces[face]])
     return rest, moving
-
-
-def save_reconstruction(path, result: Reconstruction) -> Path:
-    """Write ``result`` to ``path`` (``.npz``, atomically); read it back with :func:`load_reconstruction`."""
-    from .._atomic import save_npz_atomic
-
-    path = Path(path)
-    if path.suffix.lower() != ".npz":
-        raise InputError(f"a reconstruction is written as .npz, got {path.name!r}")
-    arrays = {k: getattr(result, k) for k in _ARRAYS}
-    arrays.update({k: getattr(result, k) for k in _OPTIONAL if getattr(result, k) is not None})
-    return save_npz_atomic(path, format_version=np.int64(RECON_FORMAT_VERSION), kind=np.str_(RECON_KIND),
-                           r=np.float64(result.r), alpha=np.float64(result.alpha),
-                           meta_json=np.str_(json.dumps(result.meta)), **arrays)
-
-
-def load_reconstruction(path) -> Reconstruction:
-    """Read a file written by :func:`save_reconstruction` (or ``sc-fem reconstruct``).
-
-    Raises
-    ------
-    FileFormatError
-        Missing, corrupted, foreign or other-version file.
-    """
-    from ..errors import FileFormatError
-    from ..io._npz import read_versioned_npz
-
-    data = read_versioned_npz(path, kind=RECON_KIND, version=RECON_FORMAT_VERSION, what="reconstruction file")
-    missing = [k for k in (*_ARRAYS, "r", "alpha") if k not in data]
-    if missing:
-        raise FileFormatError(f"{path}: reconstruction file lacks {missing}")
-    meta = json.loads(str(data["meta_json"])) if "meta_json" in data else {}
-    return Reconstruction(**{k: data[k] for k in _ARRAYS}, r=float(data["r"]), alpha=float(data["alpha"]),
-                          **{k: data.get(k) for k in _OPTIONAL}, meta=meta)
 
 
 def markdown_report(result: Reconstruction) -> str:

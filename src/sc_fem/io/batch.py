@@ -30,7 +30,7 @@ import time
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 
 from .._atomic import atomic_path
 from ..errors import InputError
@@ -63,10 +63,12 @@ class BatchResult:
 
     @property
     def n_ok(self) -> int:
+        """Meshes whose mode file was written."""
         return sum(r["status"] == "ok" for r in self.rows)
 
     @property
     def n_failed(self) -> int:
+        """Meshes that failed (their message is in the summary)."""
         return sum(r["status"] != "ok" for r in self.rows)
 
 
@@ -86,6 +88,14 @@ class BatchInterrupted(KeyboardInterrupt):
     def __init__(self, completed, n_meshes: int, summary: Path) -> None:
         super().__init__(f"interrupted: {len(completed)} of {n_meshes} mode files completed")
         self.completed, self.n_meshes, self.summary = [Path(p) for p in completed], n_meshes, Path(summary)
+
+    @property
+    def outcome(self) -> str:
+        """What the stopped batch left, as one sentence: the mode files completed, and the summary."""
+        done = (f"{len(self.completed)} of {self.n_meshes} mode files completed (complete and valid): "
+                + ", ".join(map(str, self.completed)) if self.completed else
+                f"none of the {self.n_meshes} mode files was completed")
+        return f"{done}; the others were not written; summary {self.summary}"
 
 
 @contextlib.contextmanager
@@ -198,8 +208,8 @@ def precompute_one(mesh: str, output: str, options: dict) -> dict:
     row: dict[str, Any] = {k: "" for k in SUMMARY_FIELDS}
     row.update(mesh=mesh, output=output)
     try:
-        from .modal import modal
-        from ..io.modes import save_modes
+        from ..modes.modal import modal
+        from .modes import save_modes
 
         basis = modal(mesh, **dict(options))             # modal loads the mesh (once) and expands "default"
         save_modes(basis, output)
@@ -230,8 +240,8 @@ def write_summary(rows: list[dict], path) -> Path:
     return path
 
 
-def run_batch(meshes, out_dir, *, options: dict | None = None, scheduler: str | None = None,
-              n_workers: int | None = None, processes: bool = True, progress: bool = True,
+def run_batch(meshes: Iterable[str], out_dir: str | Path, *, options: dict | None = None,
+              scheduler: str | None = None, n_workers: int | None = None, processes: bool = True, progress: bool = True,
               expand: bool = True) -> BatchResult:
     """Precompute modes for many meshes, one Dask task per mesh.
 

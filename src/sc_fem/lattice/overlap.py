@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..lattice.cubes import voxel_index
+from .cubes import voxel_index
 
 _AXES = np.eye(3)
 

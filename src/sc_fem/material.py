@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from .._validate import check_material
-from ..errors import InputError
+from ._validate import check_material
+from .errors import InputError
 
 
 @dataclass(frozen=True)
@@ -46,10 +46,17 @@ class Material:
 def lame(youngs: np.ndarray | float, poisson: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
     """Lame parameters (lambda, mu) in Pa from E (Pa) and nu.
 
+    Parameters
+    ----------
+    youngs : float or ndarray
+        Young's modulus E, Pa (> 0).
+    poisson : float or ndarray
+        Poisson's ratio nu, in (-1, 0.5); broadcast against ``youngs``.
+
     Returns
     -------
     lam, mu : ndarray
-        Same shape as the broadcast inputs.
+        First Lame parameter and shear modulus, Pa; same shape as the broadcast inputs.
     """
     E = np.asarray(youngs, dtype=float)
     nu = np.asarray(poisson, dtype=float)

@@ -16,16 +16,21 @@ lowest face. Each spec must select at least one node, else :class:`BoundaryCondi
 
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterable, Union
+from typing import TYPE_CHECKING, Callable, Iterable, Union
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .._validate import as_indices, as_points
 from ..errors import BoundaryConditionError, InputError
-from ..lattice.cubes import CubeModel
+from .cubes import CubeModel
+
+if TYPE_CHECKING:
+    from .embed import Embedding
 
 _AXES = {"x": 0, "y": 1, "z": 2}
 _UNUM = r"(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?"
@@ -49,8 +54,19 @@ class FixSpec:
     text: str = ""
 
     @classmethod
-    def box(cls, lo, hi) -> "FixSpec":
-        """All nodes with ``lo <= p <= hi`` (model units, each shape (3,))."""
+    def box(cls, lo: ArrayLike, hi: ArrayLike) -> "FixSpec":
+        """All nodes with ``lo <= p <= hi`` (model units, each shape (3,)).
+
+        Parameters
+        ----------
+        lo, hi : array_like, shape (3,)
+            Lowest and highest corner of the box, model units.
+
+        Returns
+        -------
+        FixSpec
+            The six half-spaces of the box.
+        """
         lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
         if lo.shape != (3,) or hi.shape != (3,):
             raise InputError(f"box corners must have shape (3,), got {lo.shape} and {hi.shape}")
@@ -59,7 +75,22 @@ class FixSpec:
         return cls(conds, text=f"box {lo.tolist()}..{hi.tolist()}")
 
     def select(self, points: np.ndarray, lo: np.ndarray, hi: np.ndarray, tol: float) -> np.ndarray:
-        """Boolean mask ``(n,)`` of ``points`` (model units) inside; ``lo``/``hi`` the bounding box."""
+        """Boolean mask ``(n,)`` of ``points`` (model units) inside; ``lo``/``hi`` the bounding box.
+
+        Parameters
+        ----------
+        points : ndarray, shape (n, 3)
+            Positions, model units (e.g. the lattice nodes).
+        lo, hi : ndarray, shape (3,)
+            Bounding box that ``"min"``/``"max"`` conditions refer to, model units.
+        tol : float
+            Tolerance added to every comparison, model units.
+
+        Returns
+        -------
+        ndarray of bool, shape (n,)
+            Points satisfying every condition.
+        """
         mask = np.ones(len(points), dtype=bool)
         for axis, op, ref, value in self.conditions:      # loop over conditions (a handful)
             bound = value + (0.0 if ref is None else (lo[axis] if ref == "min" else hi[axis]))
@@ -75,6 +106,17 @@ class FixSpec:
 
 def parse_fix(spec: str) -> FixSpec:
     """Parse ``"x<0.01"``, ``"z<min+0.02"``, ``"y>max-0.1"`` or ``"x>0.2 & x<0.4"``.
+
+    Parameters
+    ----------
+    spec : str
+        Conditions ``AXIS<VALUE`` or ``AXIS>VALUE`` joined by ``&``; values in model units,
+        absolute or ``min+number`` / ``max-number`` (relative to the nodes' bounding box).
+
+    Returns
+    -------
+    FixSpec
+        The parsed conditions, with ``spec`` as its text.
 
     Raises
     ------
@@ -103,12 +145,23 @@ def parse_fix(spec: str) -> FixSpec:
 Fix = Union[str, FixSpec, Callable[[np.ndarray], np.ndarray]]
 
 
-def read_vertex_file(path) -> np.ndarray:
+def read_vertex_file(path: str | os.PathLike) -> np.ndarray:
     """Vertex indices from a text file, one non-negative integer a line (``#`` comments allowed).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The text file (integers may also be separated by spaces or commas).
 
     Returns
     -------
     ndarray of int64, shape (k,)
+        The indices, in file order.
+
+    Raises
+    ------
+    BoundaryConditionError
+        The file cannot be read, holds a token that is not a non-negative integer, or no index.
     """
     p = Path(path)
     try:
@@ -133,13 +186,14 @@ def read_vertex_file(path) -> np.ndarray:
     return np.asarray(out, dtype=np.int64)
 
 
-def fixed_nodes(model: CubeModel, fix: Iterable[Fix] | Fix | None = None, *, vertices=None,
-                mesh_vertices=None, mesh_embedding=None) -> np.ndarray:
+def fixed_nodes(model: CubeModel, fix: Iterable[Fix] | Fix | None = None, *, vertices: ArrayLike | None = None,
+                mesh_vertices: ArrayLike | None = None, mesh_embedding: Embedding | None = None) -> np.ndarray:
     """Indices of the lattice nodes to hold fixed.
 
     Parameters
     ----------
     model : CubeModel
+        The lattice whose nodes (model units) are selected.
     fix : str, FixSpec, callable, or a list of them, optional
         Specs (see :func:`parse_fix`) or predicates ``f(nodes (m, 3) model units) -> (m,) bool``;
         the union is taken.
@@ -210,7 +264,18 @@ def fixed_nodes(model: CubeModel, fix: Iterable[Fix] | Fix | None = None, *, ver
     return np.flatnonzero(mask)
 
 
-def fixed_dofs(nodes) -> np.ndarray:
-    """All three DOFs of each node: ``[3i, 3i+1, 3i+2, ...]``, shape (3f,)."""
+def fixed_dofs(nodes: ArrayLike) -> np.ndarray:
+    """All three DOFs of each node: ``[3i, 3i+1, 3i+2, ...]``, shape (3f,).
+
+    Parameters
+    ----------
+    nodes : array_like of int, shape (f,)
+        Node indices (e.g. from :func:`fixed_nodes`).
+
+    Returns
+    -------
+    ndarray of int64, shape (3f,)
+        DOF indices ``3 i + c`` (node-major, x, y, z), in the order of ``nodes``.
+    """
     nodes = np.asarray(nodes, dtype=np.int64).ravel()
     return (3 * nodes[:, None] + np.arange(3)).ravel()

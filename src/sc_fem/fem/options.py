@@ -1,0 +1,146 @@
+"""Which eigensolver, and within what memory: the options of :func:`sc_fem.modal`'s eigensolve
+(:class:`EigenOptions`) and the automatic choice of method (:func:`choose_method`).
+
+``method="auto"`` predicts both solvers' times from :data:`SPEED_MODEL` (calibrated by
+``benchmarks/scale.py``) and their memory (:func:`factor_memory_estimate`,
+:func:`lobpcg_memory_estimate`), and takes the faster one that fits the budget
+(:func:`memory_budget`: ``max_memory``, default half the available memory). The solvers
+themselves are in :mod:`sc_fem.fem.eigen`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..errors import InputError, SolverError
+
+METHODS: tuple[str, ...] = ("auto", "shift-invert", "lobpcg")
+"""Names accepted by ``method=``."""
+
+FILL_CONSTANT = 12.0
+"""Calibration of :func:`factor_memory_estimate`: ``nnz(L) ~ FILL_CONSTANT * n^(4/3)`` (``n`` DOFs).
+Measured with CHOLMOD on ``K + 1e-3 M``: root-fixed cantilevers 7.9 (3k DOFs), 11.1 (19k), 11.7 (61k);
+chair r=48 7.6, r=96 5.5; bridge r=96 4.7; solid bunny r=64 5.1. 12 bounds all of them, so the
+automatic choice never starts a factorization that would not fit (it may pick LOBPCG a little early
+for shells)."""
+
+
+@dataclass(frozen=True)
+class EigenOptions:
+    """Which eigensolver, and within what memory: the options :func:`sc_fem.modal` passes on to
+    :class:`~sc_fem.fem.eigen.EigenSolver`.
+
+    Parameters
+    ----------
+    solver : {"auto", "shift-invert", "lobpcg"}
+        ``"auto"`` takes the one predicted faster on this machine whose memory fits
+        ``max_memory`` (the reason is recorded in the result).
+    backend : {"auto", "cholmod", "cholespy", "splu"}
+        Factorization backend of shift-invert (:func:`sc_fem.fem.linsolve.factorize`).
+    max_memory : float, optional
+        Memory budget in bytes for the automatic choice; default half the available memory.
+    """
+
+    solver: str = "auto"
+    backend: str = "auto"
+    max_memory: float | None = None
+
+    def __post_init__(self) -> None:
+        from .linsolve import BACKENDS
+
+        if self.solver not in METHODS:
+            raise InputError(f"eigensolver must be one of {list(METHODS)}, got {self.solver!r}")
+        if self.backend not in ("auto", *BACKENDS):
+            raise InputError(f"backend must be one of {['auto', *BACKENDS]}, got {self.backend!r}")
+        if self.max_memory is not None:
+            from .._validate import positive_scalar
+
+            object.__setattr__(self, "max_memory", positive_scalar(self.max_memory, "max_memory"))
+
+    @classmethod
+    def coerce(cls, value: "EigenOptions | str | None") -> "EigenOptions":
+        """``None`` (defaults), an EigenOptions, or a solver name (``"lobpcg"``).
+
+        Parameters
+        ----------
+        value : EigenOptions, str or None
+            The options, a solver name (the ``solver`` field) or ``None`` for the defaults.
+
+        Returns
+        -------
+        EigenOptions
+            ``value`` itself when it is one, else new options.
+        """
+        if value is None:
+            return cls()
+        if isinstance(value, cls):
+            return value
+        if isinstance(value, str):
+            return cls(solver=value)
+        raise InputError(f"eigen must be an EigenOptions or a solver name, got {type(value).__name__}")
+
+
+def factor_memory_estimate(n: int, nnz: int) -> int:
+    """Estimated bytes of a sparse Cholesky factorization of an ``n x n`` lattice matrix.
+
+    ``nnz(L) ~ FILL_CONSTANT * n^(4/3)`` (nested dissection on a 3-D grid), 12 bytes per entry
+    (value + index) plus workspace, and never below the matrix itself.
+    """
+    nnz_l = max(FILL_CONSTANT * float(n) ** (4.0 / 3.0), 0.5 * nnz)
+    return int(12.0 * nnz_l * 1.3 + 16.0 * n)
+
+
+def lobpcg_memory_estimate(n: int, nnz: int, k: int) -> int:
+    """Estimated bytes of LOBPCG + AMG: the hierarchy (~2.5x the matrix) and ~12 blocks of k vectors."""
+    return int(2.5 * 12.0 * nnz + 12.0 * 8.0 * n * (k + 8))
+
+
+SPEED_MODEL = {"shift-invert": (0.23, 1.98), "lobpcg": (0.72, 0.98), "lobpcg-numba": (0.52, 0.98)}
+"""Predicted seconds for 6 modes of a lattice with ``n`` free DOFs: ``c * (n / 7776) ** p`` per
+solver, fitted (least squares in log-log) to cantilevers measured on this machine class (2 cores,
+the default OpenBLAS, nothing else running; ``benchmarks/scale.py`` and its ``--compare``):
+shift-invert with CHOLMOD 2.55 s / 4.95 s / 9.57 s / ~100 s at 24,336 / 37,800 / 55,488 / 158,976
+DOFs; LOBPCG + smoothed-aggregation AMG with scipy's products 2.54 s / 4.57 s / 11.5 s / 85.7 s at
+24,336 / 55,488 / 158,976 / 931,896 DOFs (2026-11-23), and with the compiled row-parallel products
+(``"lobpcg-numba"``, used when numba is installed) 2.42 s / 9.4-10.2 s at 37,800 / 158,976 DOFs
+(2026-11-24). The factorization's cost grows with ~n^2, LOBPCG's with ~n; they cross near 24,000
+DOFs (~18,000 with numba). LOBPCG's cost also grows with ``k``."""
+
+
+def predicted_seconds(method: str, n: int, k: int) -> float:
+    """Seconds :data:`SPEED_MODEL` predicts for ``k`` modes of ``n`` free DOFs (LOBPCG: with the
+    compiled products when numba is installed)."""
+    from .._jit import available
+
+    c, p = SPEED_MODEL["lobpcg-numba" if method == "lobpcg" and available() else method]
+    t = c * (max(n, 1) / 7776.0) ** p
+    return t * (max(k, 6) / 6.0 if method == "lobpcg" else 1.0)
+
+
+def memory_budget(max_memory: float | None = None) -> float:
+    """Bytes the eigensolver may use: ``max_memory``, or half the available memory."""
+    from .._memory import available_memory
+
+    return 0.5 * available_memory() if max_memory is None else float(max_memory)
+
+
+def choose_method(n: int, nnz: int, k: int, max_memory: float | None = None) -> tuple[str, str]:
+    """``("shift-invert" | "lobpcg", reason)``: the one :func:`predicted_seconds` says is faster,
+    among those whose memory estimate fits the budget (bytes; default half the available memory)."""
+    budget = memory_budget(max_memory)
+    need = factor_memory_estimate(n, nnz)
+    need_l = lobpcg_memory_estimate(n, nnz, k)
+    t_si, t_l = predicted_seconds("shift-invert", n, k), predicted_seconds("lobpcg", n, k)
+    fits_si, fits_l = need <= budget, need_l <= budget
+    if not (fits_si or fits_l):
+        raise SolverError(f"the eigenproblem with {n:,} DOFs does not fit in memory: a factorization needs "
+                          f"~{need / 2**30:.1f} GiB and LOBPCG ~{need_l / 2**30:.1f} GiB, budget "
+                          f"{budget / 2**30:.1f} GiB (half the available memory unless max_memory is given: "
+                          f"EigenOptions(max_memory=...)); use a coarser resolution or a larger budget")
+    times = f"predicted {t_si:.3g} s shift-invert vs {t_l:.3g} s LOBPCG + AMG"
+    if fits_si and (t_si <= t_l or not fits_l):
+        return "shift-invert", (f"{times}; factorization ~{need / 2**20:,.0f} MiB <= budget "
+                                f"{budget / 2**20:,.0f} MiB")
+    why = "faster" if fits_si else (f"the factorization would need ~{need / 2**20:,.0f} MiB > budget "
+                                    f"{budget / 2**20:,.0f} MiB")
+    return "lobpcg", f"{times} ({why}); LOBPCG needs ~{need_l / 2**20:,.0f} MiB"

@@ -1,0 +1,147 @@
+"""Playing a mode file back (``sc-fem play``) and picturing its modes (``sc-fem modes-sheet``).
+
+:func:`play_modes` excites the modes (an impulse on a vertex, or one mode displaced), advances them
+with the exact damped modal oscillators (:class:`sc_fem.modes.player.ModalPlayer`) and renders the
+vertex animation (``.mp4``, ``.gif`` or a folder of PNG frames), or plays it in a window.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..errors import InputError, ScFemWarning
+from .report import JobResult
+
+
+def _basis(modes: Any) -> Any:
+    """A ModalBasis from a basis or a mode-file path."""
+    from ..modes.basis import ModalBasis
+    from .modes import load_modes
+
+    return modes if isinstance(modes, ModalBasis) else load_modes(modes)
+
+
+def play_modes(modes: Any, output: str | Path | None = None, *,
+               impulse: tuple[int, Sequence[float]] | None = None, mode: int | None = None,
+               amplitude: float | None = None, duration: float = 2.0, fps: float = 30.0,
+               exaggerate: float = 1.0, up: str = "z", progress: bool = False) -> JobResult:
+    """Play a mode file back and write the video (or show it in a window).
+
+    Parameters
+    ----------
+    modes : ModalBasis or path
+        The modes (a mode file from ``sc-fem precompute-modes``).
+    output : str or Path, optional
+        ``.mp4``, ``.gif`` or a folder for PNG frames; None: an interactive window (needs a display).
+    impulse : (int, (float, float, float)), optional
+        ``(vertex, J)``: an impulse ``J`` (N s) on a source vertex at t = 0.
+    mode : int, optional
+        Displace this mode at t = 0 (default 0 when there is no ``impulse``).
+    amplitude : float, optional
+        Largest vertex displacement of ``mode``, model units (default 5 % of the bounding-box
+        diagonal); only with ``mode`` (or neither ``mode`` nor ``impulse``).
+    duration : float
+        Seconds played.
+    fps : float
+        Frames per second.
+    exaggerate : float
+        Factor on the displacements drawn.
+    up : {"x", "y", "z"}
+        The model's up axis, drawn upward.
+    progress : bool
+        A progress bar of the rendering on stderr.
+
+    Returns
+    -------
+    JobResult
+        ``result`` the :class:`~sc_fem.ModalBasis`; the summary names the video and its frames
+        (empty for a window).
+
+    Warns
+    -----
+    ScFemWarning
+        Modes above half the frame rate (they alias), or motion too small to see
+        (:func:`sc_fem.modes.player.playback_warnings`).
+    """
+    from ..modes.player import ModalPlayer, playback_warnings
+    from .render import render_animation
+
+    player = ModalPlayer(_basis(modes))
+    b = player.basis
+    if impulse is not None:
+        player.impulse(int(impulse[0]), [float(j) for j in impulse[1]])
+    if mode is not None or impulse is None:
+        diag = float(np.linalg.norm(np.ptp(b.vertices, axis=0)))
+        player.excite(0 if mode is None else mode, 0.05 * diag if amplitude is None else amplitude)
+    elif amplitude is not None:
+        raise InputError("--amplitude needs --mode")
+    if output is None:
+        if not os.environ.get("DISPLAY"):
+            raise InputError("no display for an interactive window: give -o out.mp4, out.gif or a folder")
+        _window(player, duration, fps, exaggerate)
+        return JobResult(result=b)
+    frames = player.frames(duration, fps)
+    if exaggerate != 1.0:
+        frames = b.vertices[None] + exaggerate * (frames - b.vertices[None])
+    for w in playback_warnings(b, frames, fps, exaggerate):
+        warnings.warn(w, ScFemWarning, stacklevel=2)
+    title = f"{b.source}: {b.n_modes} modes, {b.frequencies[0]:.3g}..{b.frequencies[-1]:.3g} Hz"
+    path = render_animation(np.asarray(frames), b.faces, output, fps=fps, title=title, progress=progress,
+                            times=np.arange(len(frames)) / fps, up=up)
+    return JobResult(written=[path], result=b, text=f"wrote {path} ({len(frames)} frames at {fps:g} fps)")
+
+
+def _window(player: Any, duration: float, fps: float, exaggerate: float) -> None:  # pragma: no cover - display
+    """Play in an interactive pyvista window for ``duration`` seconds of wall time."""
+    import time
+
+    import pyvista as pv
+
+    from .render import surface_polydata
+
+    b = player.basis
+    mesh = surface_polydata(b.vertices, b.faces)
+    p = pv.Plotter(title="sc-fem play")
+    p.add_mesh(mesh, color="#d9822b")
+    p.show(interactive_update=True)
+    dt = 1.0 / fps
+    t_end = time.perf_counter() + duration
+    while time.perf_counter() < t_end:
+        mesh.points = b.vertices + exaggerate * (player.step(dt) - b.vertices)
+        p.update()
+        time.sleep(max(0.0, dt - 0.002))
+    p.close()
+
+
+def modes_sheet_to_file(modes: Any, output: str | Path, *, n_modes: int = 6, columns: int | None = None,
+                        up: str = "z") -> JobResult:
+    """Write a PNG grid of the first mode shapes of a mode file (:func:`sc_fem.io.render.modes_sheet`).
+
+    Parameters
+    ----------
+    modes : ModalBasis or path
+        The modes (a mode file).
+    output : str or Path
+        The ``.png``.
+    n_modes : int
+        Modes shown (at most the basis's).
+    columns : int, optional
+        Panels per row (default 3).
+    up : {"x", "y", "z"}
+        The model's up axis, drawn upward.
+
+    Returns
+    -------
+    JobResult
+        ``result`` the :class:`~sc_fem.ModalBasis`; the summary names the picture.
+    """
+    from .render import modes_sheet
+
+    basis = _basis(modes)
+    path = modes_sheet(basis, output, n_modes=n_modes, columns=columns, up=up)
+    return JobResult(written=[path], result=basis, text=f"wrote {path} ({min(n_modes, basis.n_modes)} modes)")

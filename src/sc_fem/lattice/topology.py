@@ -1,0 +1,88 @@
+"""How cubes hang together: corner order, cells of points, shared nodes and connected components.
+
+Corner order is scikit-fem's ``MeshHex`` order (:data:`HEX_CORNERS`). A node is a (grid corner,
+body) pair, so cubes of different bodies in one cell share no node (virtual nodes); components
+are found among neighbouring cubes of the same body.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage
+
+HEX_CORNERS = np.array(
+    [[0, 0, 0], [0, 0, 1], [0, 1, 0], [1, 0, 0], [0, 1, 1], [1, 0, 1], [1, 1, 0], [1, 1, 1]],
+    dtype=np.int64,
+)
+"""Offsets (dx, dy, dz) of the 8 corners of a cube, in scikit-fem ``MeshHex`` order."""
+
+CONNECTIVITY = {"face": 1, "edge": 2, "vertex": 3}
+"""Neighbourhoods for connected components: cubes sharing a face (6-connected, default),
+an edge (18-connected) or a corner (26-connected)."""
+
+
+def voxel_index(points: np.ndarray, origin: np.ndarray, pitch: float, dims: np.ndarray) -> np.ndarray:
+    """Lattice cell (i, j, k) of each point, shape (n, 3) int64, clipped into the grid.
+
+    Cells are half-open ``[lo, lo + pitch)``, except that points on the upper faces of the grid
+    belong to the last cell.
+    """
+    return np.clip(np.floor((points - origin) / pitch).astype(np.int64), 0, np.asarray(dims) - 1)
+
+
+def nodes_and_hexes(cells: np.ndarray, dims: np.ndarray, piece: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unique corner nodes of the cubes and the (n, 8) connectivity, vectorized: a node is a
+    (grid corner, body) pair, so cubes of different bodies in one cell share no node."""
+    corners = cells[:, None, :] + HEX_CORNERS[None, :, :]          # (n, 8, 3)
+    ndims = np.asarray(dims, dtype=np.int64) + 1
+    lin = np.ravel_multi_index(corners.reshape(-1, 3).T, ndims)    # (8n,)
+    n_p = int(piece.max()) + 1 if len(piece) else 1
+    uniq, inverse = np.unique(lin * n_p + np.repeat(piece, 8), return_inverse=True)
+    node_index = np.stack(np.unravel_index(uniq // n_p, ndims), axis=1).astype(np.int64)
+    return node_index, inverse.reshape(-1, 8).astype(np.int64)
+
+
+def piece_labels(cells: np.ndarray, dims: np.ndarray, connectivity: str, piece: np.ndarray) -> tuple[np.ndarray, int]:
+    """Connected components of cubes of the same body that are neighbours (graph on the sorted
+    (cell, body) keys; labels in order of each component's first cube, as ``ndimage.label``)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n_p = int(piece.max()) + 1
+    dims = np.asarray(dims, dtype=np.int64)
+    key = np.ravel_multi_index(cells.T, dims) * n_p + piece            # sorted (from_cells sorts)
+    offs = np.argwhere(ndimage.generate_binary_structure(3, CONNECTIVITY[connectivity])) - 1
+    offs = offs[[tuple(o) > (0, 0, 0) for o in offs]]                  # each neighbour pair once
+    rows, cols = [], []
+    for o in offs:                                                     # 3, 9 or 13 offsets
+        nb = cells + o
+        ok = np.all((nb >= 0) & (nb < dims), axis=1)
+        k = np.ravel_multi_index(nb[ok].T, dims) * n_p + piece[ok]
+        at = np.minimum(np.searchsorted(key, k), len(key) - 1)
+        hit = key[at] == k
+        rows.append(np.flatnonzero(ok)[hit])
+        cols.append(at[hit])
+    r, c = np.concatenate(rows), np.concatenate(cols)
+    n_c, lab = connected_components(coo_matrix((np.ones(len(r)), (r, c)), shape=(len(cells),) * 2), directed=False)
+    first = np.full(n_c, len(cells))
+    np.minimum.at(first, lab, np.arange(len(cells)))
+    rank = np.empty(n_c, np.int64)
+    rank[np.argsort(first)] = np.arange(n_c)
+    return rank[lab], n_c
+
+
+def components(cells: np.ndarray, dims: np.ndarray, connectivity: str, piece: np.ndarray) -> np.ndarray:
+    """Component label per cube, 0 = largest, by ``scipy.ndimage.label`` on the occupancy grid
+    (one body) or by neighbours of the same body (:func:`piece_labels`)."""
+    if len(piece) and piece.max() > 0:
+        lab, n = piece_labels(cells, dims, connectivity, piece)
+    else:
+        grid = np.zeros(tuple(int(d) for d in dims), dtype=bool)
+        grid[tuple(cells.T)] = True
+        structure = ndimage.generate_binary_structure(3, CONNECTIVITY[connectivity])
+        labels, n = ndimage.label(grid, structure=structure)
+        lab = labels[tuple(cells.T)] - 1
+    sizes = np.bincount(lab, minlength=n)
+    rank = np.empty(n, dtype=np.int64)
+    rank[np.argsort(-sizes, kind="stable")] = np.arange(n)
+    return rank[lab]
