@@ -47,6 +47,7 @@ from sc_fem.errors import InputError
 from sc_fem.fem.assemble import Assembler
 from sc_fem.fem.elements import cube_stiffness_chunks, moment_mass
 from sc_fem.lattice.cubes import HEX_CORNERS
+from sc_fem.lattice.topology import fine_to_coarse
 
 CHUNK = 48
 """Coarse cubes condensed per batched solve (memory: CHUNK * (3 (n+1)^3 + 30)^2 floats)."""
@@ -105,17 +106,7 @@ def _strain_rows(grad: np.ndarray) -> np.ndarray:
 def children(model, fine, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Which fine cubes lie in which coarse cube: ``(fine index (k,), coarse index (k,), local
     sub-cube (k, 3) in [0, n)^3)``, fine cubes of the same body only (others are dropped)."""
-    parent = fine.cells // n
-    local = fine.cells - n * parent
-    n_p = int(max(model.piece.max(), fine.piece.max())) + 1
-    key_c = np.ravel_multi_index(model.cells.T, model.dims) * n_p + model.piece     # sorted
-    ok = np.all(parent < model.dims, axis=1)
-    key_f = np.full(len(parent), -1, dtype=np.int64)
-    key_f[ok] = np.ravel_multi_index(parent[ok].T, model.dims) * n_p + fine.piece[ok]
-    at = np.minimum(np.searchsorted(key_c, key_f), len(key_c) - 1)
-    hit = ok & (key_c[at] == key_f)
-    f = np.flatnonzero(hit)
-    return f, at[hit], local[hit]
+    return fine_to_coarse(model, fine, n)
 
 
 def coarsened_stiffness(model, fine, n: int, *, cubes=None, chunk: int = CHUNK,

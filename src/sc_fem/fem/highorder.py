@@ -34,6 +34,7 @@ from ..errors import InputError
 from ..lattice.cubes import HEX_CORNERS
 from ..lattice.embed import embedding
 from ..lattice.moments import EXPONENTS
+from ..lattice.topology import fine_to_coarse
 from ..lattice.voxelize import voxelize
 
 DEGREES: dict[str, int] = {"q2": 2, "q3": 3}
@@ -231,17 +232,10 @@ class HighOrderCubes:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")              # the fine grid's notes repeat the coarse one's
             fine = voxelize(self.scene.mesh, **opts)
-        parent = fine.cells // s
-        n_p = int(max(model.piece.max(), fine.piece.max())) + 1
-        key_c = np.ravel_multi_index(model.cells.T, model.dims) * n_p + model.piece      # sorted
-        ok = np.all(parent < model.dims, axis=1)
-        key_f = np.full(len(parent), -1, dtype=np.int64)
-        key_f[ok] = np.ravel_multi_index(parent[ok].T, model.dims) * n_p + fine.piece[ok]
-        at = np.minimum(np.searchsorted(key_c, key_f), len(key_c) - 1)
-        hit = np.flatnonzero(ok & (key_c[at] == key_f))
+        hit, cube, local = fine_to_coarse(model, fine, s)
         pts, w = sigma_points(fine.moments[hit])
-        xi = ((fine.cells[hit] - s * parent[hit])[:, None, :] + pts) / s
-        return np.repeat(at[hit], 6), xi.reshape(-1, 3), (w / s**3).ravel()
+        xi = (local[:, None, :] + pts) / s
+        return np.repeat(cube, 6), xi.reshape(-1, 3), (w / s**3).ravel()
 
     def _integrals(self) -> tuple[np.ndarray, np.ndarray]:
         """Per cube ``G`` (e, 3, nb, 3, nb) (reference gradients, units of h^3 / h^2 = h) and

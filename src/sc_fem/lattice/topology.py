@@ -86,3 +86,32 @@ def components(cells: np.ndarray, dims: np.ndarray, connectivity: str, piece: np
     rank = np.empty(n, dtype=np.int64)
     rank[np.argsort(-sizes, kind="stable")] = np.arange(n)
     return rank[lab]
+
+
+def fine_to_coarse(coarse, fine, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Which cubes of ``fine`` (the same mesh voxelized with ``pitch / n`` from the same origin)
+    lie in which cube of ``coarse``, matched by cell and body.
+
+    Parameters
+    ----------
+    coarse, fine : CubeModel
+        The two lattices.
+    n : int
+        Fine cubes per coarse cube edge.
+
+    Returns
+    -------
+    fine_index, coarse_index : ndarray of int, shape (k,)
+        Matched pairs (fine cubes in no coarse cube of their body are left out).
+    local : ndarray of int, shape (k, 3)
+        Position of each fine cube inside its coarse cube, in ``[0, n)^3``.
+    """
+    parent = fine.cells // n
+    n_p = int(max(coarse.piece.max(), fine.piece.max())) + 1
+    key_c = np.ravel_multi_index(coarse.cells.T, coarse.dims) * n_p + coarse.piece      # sorted
+    ok = np.all(parent < coarse.dims, axis=1)
+    key_f = np.full(len(parent), -1, dtype=np.int64)
+    key_f[ok] = np.ravel_multi_index(parent[ok].T, coarse.dims) * n_p + fine.piece[ok]
+    at = np.minimum(np.searchsorted(key_c, key_f), len(key_c) - 1)
+    hit = np.flatnonzero(ok & (key_c[at] == key_f))
+    return hit, at[hit], fine.cells[hit] - n * parent[hit]
