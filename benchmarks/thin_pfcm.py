@@ -10,7 +10,12 @@ general mesh's content (moments of higher degree, :mod:`sc_fem.lattice.moments`)
 
 Reproduce:
 
-    python benchmarks/thin_pfcm.py i_beam 16 2        # case, resolution, degree
+    python benchmarks/thin_pfcm.py i_beam 16 2        # case, resolution, degree (the default, ~10 s)
+    python benchmarks/thin_pfcm.py i_beam 32 3 4      # ... and the shipped fine-cube rule, 4x finer
+
+Measured (I-section, 10 lowest free-free frequencies, mean error against the P2 reference):
+r16: p1 (plain Q1) 135 %, p2 48.5 %, p3 17.3 %; r32: p1 72.7 %, p2 15.4 %, p3 4.2 % (fine-cube rule:
+4.9 %). Channel r32: p2 14.1 %, p3 4.7 %. Table r32 p2: 2.5 %. Portal frame r32 p2: 11.1 %.
 """
 
 from __future__ import annotations
@@ -185,10 +190,14 @@ def freqs(K, M, k=10):
 
 
 def main(argv):
+    argv = list(argv) or ["i_beam", "16", "2"]               # `make bench`: the quick case
     name, r, p = argv[0], int(argv[1]), int(argv[2])
     fine_s = int(argv[3]) if len(argv) > 3 else 0
     geo = vc.thin_geometry(name)
-    level = next(lv for lv in vc.THIN_REF_LEVELS[::-1] if vc._ref_cache(name, lv).exists())
+    level = next((lv for lv in vc.THIN_REF_LEVELS[::-1] if vc._ref_cache(name, lv).exists()), None)
+    if level is None:
+        raise SystemExit(f"no P2 reference of {name!r} is cached: run "
+                         f"`python benchmarks/vs_conforming_fem.py --thin --cases {name}` first")
     ref = np.load(vc._ref_cache(name, level), allow_pickle=True)["freqs"]
     t0 = time.perf_counter()
     model, K, M, mass = build(geo, r, p, fine_s)
