@@ -47,7 +47,6 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-import scipy.sparse as sp
 from _common import SHARED_MESHES, out_path, print_table, save_figure
 
 import sc_fem
@@ -546,8 +545,7 @@ def run_thin_higher_order(geo: dict, r: int, element: str, ref: dict, topo: dict
     t0 = time.perf_counter()
     spec = f"{AXES[geo['fix_axis']]}<min+0"
     held = sc_fem.Scene.from_model(model, geo["mesh"], fix=spec)
-    sa = HighOrderAssembler(held, element)
-    sa.cubes._G, sa.cubes._M = asm.cubes._integrals()          # the same integrals: not twice
+    sa = HighOrderAssembler(asm.cubes, fixed_nodes=held.fixed_nodes)    # the same integrals: not twice
     K = sa.stiffness()
     if geo["gravity"] is not None:
         b = sa.mass() @ np.tile(geo["gravity"], sa.cubes.n_nodes)[sa.free_dofs]

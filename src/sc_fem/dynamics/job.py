@@ -183,8 +183,10 @@ def run_simulation(scene, *, duration: float, dt: float | None = None, method: s
         kw.update(substeps=xpbd.substeps, iterations=xpbd.iterations, constraints=xpbd.constraints,
                   damping=xpbd.damping)
     integ = make_integrator(method, model, dt, **kw)
+    dtc = None
     if cls.steps_per_frame is None and dt_given is None:    # 0.9 dt_crit, a whole number of steps per frame
-        dt = 1.0 / fps / math.ceil(1.0 / (fps * 0.9 * integ.dt_crit))
+        dtc = integ.dt_crit                                 # one eigensolve: the step does not change it
+        dt = 1.0 / fps / math.ceil(1.0 / (fps * 0.9 * dtc))
         integ = make_integrator(method, model, dt, **kw)
     J = impulse_nodes(scene, impulses)
     if J is not None:
@@ -202,7 +204,8 @@ def run_simulation(scene, *, duration: float, dt: float | None = None, method: s
     # unless they would take more than LATTICE_TRACK_BYTES of memory
     keep_u = (n_steps // every + 1) * model.n_nodes * 24 <= LATTICE_TRACK_BYTES
     rec = record(integ, n_steps, scene=scene, every=every, progress=progress, keep_u=keep_u)
-    dtc = integ.dt_crit if cls.steps_per_frame is None else None
+    if cls.steps_per_frame is None and dtc is None:
+        dtc = integ.dt_crit
     warnings = []
     if rec.energy_gain > ENERGY_GAIN_WARN:
         # the loads' work is accounted; damping, friction and contact only take energy out

@@ -143,7 +143,6 @@ class XPBDSolver:
         self._energy_cache = (None, None)          # (positions array, its energy)
         self.last_energy_growth = 0.0
         """Energy growth (see :meth:`energy_growth`) after the last :meth:`step`."""
-        self.h = model.h
         self.kernel = choose_kernel(kernel, constraints == "neohookean" and self.gauss_seidel)
         """The sweep that runs: ``"numba"`` or ``"numpy"``."""
         self.constraint_set = ConstraintSet(model, constraints, self.w, self.rest, relaxation=self.relaxation)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..lattice.cubes import CubeModel
-from .kinematics import DN_CENTRE, centre_F, polar_rotation
+from .kinematics import DN_CENTRE, centre_F, cube_rotations, polar_rotation
 from .xpbd_kernels import (L_REF, MATCHING_KIND, MATCHINGS, S_REF, _scatter_add, _volume_terms, corotational_terms,
                            cube_colors, neohookean_terms)
 
@@ -138,7 +138,7 @@ class ConstraintSet:
             self._Ainv_ds = ds
 
     def _update_rotations(self, x: np.ndarray) -> None:
-        self._R = polar_rotation(centre_F(x[self.model.hexes], self.h))
+        self._R = cube_rotations(x[self.model.hexes], self.h)
 
     def _project_corot(self, x: np.ndarray, g: int, aD: np.ndarray, aH: np.ndarray,
                        scale=None, accumulate: bool = False):

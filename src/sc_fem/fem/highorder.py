@@ -29,12 +29,13 @@ from functools import lru_cache
 
 import numpy as np
 import scipy.sparse as sp
+from numpy.typing import ArrayLike
 
 from ..errors import InputError
 from ..lattice.cubes import HEX_CORNERS
 from ..lattice.embed import embedding
 from ..lattice.moments import EXPONENTS
-from ..lattice.topology import fine_to_coarse
+from ..lattice.topology import fine_to_coarse, keyed_nodes
 from ..lattice.voxelize import voxelize
 
 DEGREES: dict[str, int] = {"q2": 2, "q3": 3}
@@ -145,8 +146,6 @@ class HighOrderCubes:
         The degree (2 or 3).
     refine : int
         Fine cubes per cube edge for the integrals over partly filled cubes (:data:`REFINE`).
-    fixed_nodes : array_like of int, optional
-        Cube corners held instead of the scene's.
 
     Attributes
     ----------
@@ -158,12 +157,12 @@ class HighOrderCubes:
     corner_nodes : ndarray of int, shape (m,)
         The node at each of the model's cube corners (:attr:`CubeModel.nodes` order).
     fixed_dofs : ndarray of int
-        DOFs held: every node of an edge, face or cube whose corners are all fixed in the scene.
+        DOFs held by the scene's fixed nodes (:meth:`held_dofs`).
     W : scipy.sparse.csr_matrix, shape (n_vertices, N)
         The field at the source vertices: node displacements to vertex displacements.
     """
 
-    def __init__(self, scene, element: str, *, refine: int = REFINE, fixed_nodes=None) -> None:
+    def __init__(self, scene, element: str, *, refine: int = REFINE) -> None:
         if element not in DEGREES:
             raise InputError(f"higher-order element must be one of {sorted(DEGREES)}, got {element!r}")
         if scene.mesh is None or not len(scene.faces):
@@ -174,21 +173,16 @@ class HighOrderCubes:
         p = self.degree
         nb = (p + 1) ** 3
         local = np.stack(np.meshgrid(*[np.arange(p + 1)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
-        fine_dims = model.dims * p + 1
-        n_p = int(model.piece.max()) + 1
-        keys = (np.ravel_multi_index((p * model.cells[:, None, :] + local[None]).reshape(-1, 3).T, fine_dims)
-                * n_p + np.repeat(model.piece, nb))
-        uniq, node = np.unique(keys, return_inverse=True)
-        node = node.reshape(model.n_cubes, nb)
-        lattice = np.stack(np.unravel_index(uniq // n_p, tuple(fine_dims)), axis=1)
+        lattice, node = keyed_nodes(p * model.cells[:, None, :] + local[None], model.dims * p + 1, model.piece)
         self.nodes = model.origin + (model.pitch / p) * lattice
-        self.n_nodes = len(uniq)
+        self.n_nodes = len(lattice)
         self.dofs = (3 * node[:, :, None] + np.arange(3)).reshape(model.n_cubes, 3 * nb)
         self._node = node
         corner_local = (HEX_CORNERS * p) @ np.array([(p + 1) ** 2, p + 1, 1])          # (8,) local index
         self.corner_nodes = np.empty(model.n_nodes, dtype=np.int64)
         self.corner_nodes[model.hexes.ravel()] = node[:, corner_local].ravel()
-        self.fixed_dofs = self._fixed(scene.fixed_nodes if fixed_nodes is None else fixed_nodes, local)
+        self._local = local
+        self.fixed_dofs = self.held_dofs(scene.fixed_nodes)
         self._G = self._M = None
 
     @property
@@ -200,9 +194,21 @@ class HighOrderCubes:
         """Node positions in metres, shape (N, 3)."""
         return self.nodes * self.scene.model.scale
 
-    def _fixed(self, fixed_corners: np.ndarray, local: np.ndarray) -> np.ndarray:
-        """DOFs of the nodes whose cube entity (vertex, edge, face, interior) has all corners fixed."""
-        model, p = self.scene.model, self.degree
+    def held_dofs(self, fixed_corners: ArrayLike) -> np.ndarray:
+        """DOFs held when the cube corners ``fixed_corners`` (model node indices) are fixed: every
+        node of a cube vertex, edge, face or interior whose corners are all fixed.
+
+        Parameters
+        ----------
+        fixed_corners : array_like of int, shape (k,)
+            Fixed nodes of the model (:attr:`Scene.fixed_nodes` numbering).
+
+        Returns
+        -------
+        ndarray of int
+            The held DOFs (``3 node + c``), sorted.
+        """
+        model, p, local = self.scene.model, self.degree, self._local
         held = np.zeros(model.n_nodes, dtype=bool)
         held[np.asarray(fixed_corners, dtype=np.int64)] = True
         if not held.any():
@@ -332,11 +338,10 @@ class HighOrderAssembler:
 
     Parameters
     ----------
-    scene : Scene
-        Model, source mesh and fixed nodes.
-    element : {"q2", "q3"}
-    refine, fixed_nodes
-        See :class:`HighOrderCubes`.
+    cubes : HighOrderCubes
+        The field (its integrals are computed once and shared by every assembler built on it).
+    fixed_nodes : array_like of int, optional
+        Cube corners held instead of the scene's fixed nodes (e.g. with floating parts pinned).
 
     Attributes
     ----------
@@ -345,11 +350,11 @@ class HighOrderAssembler:
         DOFs left free by the scene's fixed nodes.
     """
 
-    def __init__(self, scene, element: str, *, refine: int = REFINE, fixed_nodes=None) -> None:
-        self.cubes = HighOrderCubes(scene, element, refine=refine, fixed_nodes=fixed_nodes)
-        self.model = scene.model
-        free = np.ones(self.cubes.n_dofs, dtype=bool)
-        free[self.cubes.fixed_dofs] = False
+    def __init__(self, cubes: HighOrderCubes, *, fixed_nodes: ArrayLike | None = None) -> None:
+        self.cubes = cubes
+        self.model = cubes.scene.model
+        free = np.ones(cubes.n_dofs, dtype=bool)
+        free[cubes.fixed_dofs if fixed_nodes is None else cubes.held_dofs(fixed_nodes)] = False
         self.free_dofs = np.flatnonzero(free)
 
     @property

@@ -28,7 +28,7 @@ from .assemble import Assembler
 from ..lattice.boundary import fixed_dofs
 from .rigid import rigid_block
 from .elements import DEFAULT_ELEMENT, check_element
-from .highorder import DEGREES, HighOrderAssembler
+from .highorder import DEGREES, HighOrderAssembler, HighOrderCubes
 from ..errors import BoundaryConditionError, InputError, SolverError
 from ..lattice.cubes import CubeModel
 from .linsolve import factorize
@@ -49,7 +49,8 @@ class StaticResult:
     vertex_displacements : ndarray, shape (k, 3) or None
         Displacements of the given points / source-mesh vertices, m.
     forces : ndarray, shape (m, 3)
-        Total applied node forces, N (before condensation).
+        Total applied node forces, N (before condensation; for ``"q2"`` / ``"q3"`` the trilinear
+        equivalent of the load, which those cubes apply consistently through their own field).
     fixed_nodes : ndarray of int, shape (f,)
         Nodes held fixed by the boundary conditions.
     n_floating_nodes : int
@@ -62,6 +63,8 @@ class StaticResult:
         ``||K u - f|| / ||f||`` on the free DOFs.
     timings : dict
         Wall seconds of ``"assemble"``, ``"factorize"``, ``"solve"``.
+    compliance : float
+        Work of the load that was solved, ``b . x`` on the free DOFs (J); twice the strain energy.
     """
 
     displacements: np.ndarray
@@ -73,11 +76,7 @@ class StaticResult:
     backend: str
     residual: float
     timings: dict = field(default_factory=dict)
-
-    @property
-    def compliance(self) -> float:
-        """Work of the applied loads ``f . u`` (J); twice the strain energy."""
-        return float(np.sum(self.forces * self.displacements))
+    compliance: float = 0.0
 
     @property
     def max_displacement(self) -> float:
@@ -223,10 +222,9 @@ def solve_static(model: CubeModel | Scene, *, element: str = DEFAULT_ELEMENT,
                             element, "none", 0.0, t)
     all_fixed = np.union1d(fixed, floating)
     t0 = time.perf_counter()
-    if higher:
-        asm = HighOrderAssembler(scene, element, fixed_nodes=all_fixed)
-        Wp = asm.cubes.W if (W is not None or pf is not None) else None
-        W = Wp if W is not None else None
+    if higher:                          # point forces imply W (checked above): the field's own map
+        asm = HighOrderAssembler(HighOrderCubes(scene, element), fixed_nodes=all_fixed)
+        W = None if W is None else asm.cubes.W
     else:
         asm = Assembler(model, element, fixed_dofs=fixed_dofs(all_fixed))
     K = asm.stiffness()
@@ -241,7 +239,7 @@ def solve_static(model: CubeModel | Scene, *, element: str = DEFAULT_ELEMENT,
         if g is not None:
             b = b + asm.mass() @ np.tile(g, asm.cubes.n_nodes)[asm.free_dofs]
         if pf is not None:
-            b = b + (Wp.T @ pf).reshape(-1)[asm.free_dofs]
+            b = b + (W.T @ pf).reshape(-1)[asm.free_dofs]
     else:
         b = asm.restrict(f)
     x = fac.solve(b)
@@ -255,4 +253,4 @@ def solve_static(model: CubeModel | Scene, *, element: str = DEFAULT_ELEMENT,
         vu = None if W is None else asm.vertex_field(x, W)
     else:
         vu = None if W is None else np.asarray(W @ u)
-    return StaticResult(u, vu, f, fixed, len(floating), element, fac.backend, res, t)
+    return StaticResult(u, vu, f, fixed, len(floating), element, fac.backend, res, t, compliance=float(b @ x))

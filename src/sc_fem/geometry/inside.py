@@ -46,6 +46,32 @@ def winding_number(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray) 
                            for s in range(0, len(q), _CHUNK)])
 
 
+def group_boxes(vertices: np.ndarray, faces: np.ndarray, group: np.ndarray,
+                n_groups: int) -> tuple[np.ndarray, np.ndarray]:
+    """Bounding box of every group of faces (parts, bodies), vectorized.
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (n, 3)
+        Model units.
+    faces : ndarray of int, shape (m, 3)
+    group : ndarray of int, shape (m,)
+        Group of each face, in ``[0, n_groups)``.
+    n_groups : int
+
+    Returns
+    -------
+    lo, hi : ndarray, shape (n_groups, 3)
+        Lowest and highest corner (inf / -inf for a group without faces).
+    """
+    fg = np.repeat(group, 3)
+    lo = np.full((n_groups, 3), np.inf)
+    hi = np.full((n_groups, 3), -np.inf)
+    np.minimum.at(lo, fg, vertices[faces.reshape(-1)])
+    np.maximum.at(hi, fg, vertices[faces.reshape(-1)])
+    return lo, hi
+
+
 @dataclass(frozen=True, eq=False)
 class MeshParts:
     """Parts of a mesh and which of them enclose volume.
@@ -78,13 +104,7 @@ class MeshParts:
 
     def boxes(self, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Bounding box of every part: lowest and highest corner, each (k, 3), model units."""
-        fv = self.faces.reshape(-1)
-        flab = np.repeat(self.label, 3)
-        lo = np.full((self.n_parts, 3), np.inf)
-        hi = np.full((self.n_parts, 3), -np.inf)
-        np.minimum.at(lo, flab, vertices[fv])
-        np.maximum.at(hi, flab, vertices[fv])
-        return lo, hi
+        return group_boxes(vertices, self.faces, self.label, self.n_parts)
 
     def closed_faces(self) -> np.ndarray:
         """Boolean mask (m,) of the faces that belong to closed parts."""

@@ -174,7 +174,10 @@ def _no_logging(quiet: bool):
 
 
 def expand_inputs(patterns) -> list[str]:
-    """Meshes from paths, glob patterns (``assets/*.obj``) and ``builtin:NAME``; order kept, no duplicates."""
+    """Meshes from paths, glob patterns (``assets/*.obj``) and ``builtin:NAME``; order kept, no duplicates
+    (one path or pattern on its own is one argument, not a sequence of characters)."""
+    if isinstance(patterns, (str, os.PathLike)):
+        patterns = [patterns]
     out: list[str] = []
     for p in patterns:                                     # loop over command-line arguments
         s = str(p)
@@ -335,7 +338,7 @@ def run_batch(meshes: Iterable[str], out_dir: str | Path, *, options: dict | Non
                 rows[i] = fut.result()
             except Exception as exc:  # noqa: BLE001 - e.g. a worker killed by the OS
                 rows[i] = {**{k: "" for k in SUMMARY_FIELDS}, "mesh": meshes[i], "status": "error",
-                           "error": f"task failed: {type(exc).__name__}: {exc}"}
+                           "seconds": 0.0, "error": f"task failed: {type(exc).__name__}: {exc}"}
             bar.update(1)
             bar.set_postfix_str(f"{Path(meshes[i]).name}: {rows[i]['status']}")
         address = client.scheduler.address if client.scheduler else str(scheduler)

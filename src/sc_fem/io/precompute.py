@@ -7,11 +7,11 @@ several meshes to :func:`sc_fem.io.batch.run_batch`; :func:`precompute_summary` 
 from __future__ import annotations
 
 import os
-import sys
+import warnings
 from pathlib import Path
 from typing import Any, Iterable
 
-from ..errors import InputError
+from ..errors import InputError, ScFemWarning
 from .batch import BatchResult, expand_inputs, run_batch
 from .report import JobResult, stage, table
 
@@ -120,8 +120,8 @@ def precompute_modes(meshes: Iterable[str], output: str | Path, options: dict | 
         basis = modal(meshes[0], progress=verbose, **dict(options or {}))   # modal loads the mesh (and times it)
     with stage("write", timings, verbose):
         save_modes(basis, out)
-    if verbose and basis.eigen.get("truncated"):
-        print(f"warning: {basis.eigen['truncated']}", file=sys.stderr)
+    if basis.eigen.get("truncated"):
+        warnings.warn(basis.eigen["truncated"], ScFemWarning, stacklevel=2)
     auto = f"resolution auto:\n{format_resolution_table(basis.resolution_table)}\n" if basis.resolution_table else ""
     return JobResult(written=[out], result=basis,
                      text=f"{auto}{precompute_summary(basis, {'write': timings['write']})}\nwrote {out}")

@@ -9,6 +9,7 @@ import warnings
 import numpy as np
 
 from ..errors import ScFemWarning
+from ..geometry.inside import group_boxes
 from ..geometry.sampling import Samples
 from .cubes import CubeModel, voxel_index
 from .mass import _inward, _mass_samples, _occupied_cells, _solid_parts
@@ -37,11 +38,7 @@ def _batches(vertices, faces, face_body, n_bodies: int, grid) -> tuple[list[np.n
     tell every cube's body by where it lies (greedy, over bodies). Returns the batches (arrays of
     body indices) and every body's lowest and highest cell, each (n_bodies, 3)."""
     origin, pitch, dims = grid
-    lo = np.full((n_bodies, 3), np.inf)
-    hi = np.full((n_bodies, 3), -np.inf)
-    fb = np.repeat(face_body, 3)
-    np.minimum.at(lo, fb, vertices[faces.ravel()])
-    np.maximum.at(hi, fb, vertices[faces.ravel()])
+    lo, hi = group_boxes(vertices, faces, face_body, n_bodies)
     a, b = voxel_index(lo, origin, pitch, dims), voxel_index(hi, origin, pitch, dims)
     batch = np.full(n_bodies, -1)
     for i in np.argsort(-np.prod(b - a + 1, axis=1), kind="stable"):     # bodies, largest box first

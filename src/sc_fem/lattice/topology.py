@@ -30,16 +30,39 @@ def voxel_index(points: np.ndarray, origin: np.ndarray, pitch: float, dims: np.n
     return np.clip(np.floor((points - origin) / pitch).astype(np.int64), 0, np.asarray(dims) - 1)
 
 
-def nodes_and_hexes(cells: np.ndarray, dims: np.ndarray, piece: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unique corner nodes of the cubes and the (n, 8) connectivity, vectorized: a node is a
-    (grid corner, body) pair, so cubes of different bodies in one cell share no node."""
-    corners = cells[:, None, :] + HEX_CORNERS[None, :, :]          # (n, 8, 3)
-    ndims = np.asarray(dims, dtype=np.int64) + 1
-    lin = np.ravel_multi_index(corners.reshape(-1, 3).T, ndims)    # (8n,)
+def keyed_nodes(points: np.ndarray, ndims: np.ndarray, piece: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Number the lattice points that cubes carry, a node per (lattice point, body), vectorized.
+
+    Parameters
+    ----------
+    points : ndarray of int, shape (n, k, 3)
+        The lattice points of each of the n cubes (its corners, or the points of a finer lattice).
+    ndims : ndarray of int, shape (3,)
+        Extent of that lattice (points per axis).
+    piece : ndarray of int, shape (n,)
+        Body of each cube: cubes of different bodies share no node.
+
+    Returns
+    -------
+    node_index : ndarray of int, shape (m, 3)
+        Lattice point of each node.
+    nodes : ndarray of int, shape (n, k)
+        Node of each cube's points.
+    """
+    n, k = points.shape[:2]
+    ndims = np.asarray(ndims, dtype=np.int64)
+    lin = np.ravel_multi_index(points.reshape(-1, 3).T, ndims)
     n_p = int(piece.max()) + 1 if len(piece) else 1
-    uniq, inverse = np.unique(lin * n_p + np.repeat(piece, 8), return_inverse=True)
+    uniq, inverse = np.unique(lin * n_p + np.repeat(piece, k), return_inverse=True)
     node_index = np.stack(np.unravel_index(uniq // n_p, ndims), axis=1).astype(np.int64)
-    return node_index, inverse.reshape(-1, 8).astype(np.int64)
+    return node_index, inverse.reshape(n, k).astype(np.int64)
+
+
+def nodes_and_hexes(cells: np.ndarray, dims: np.ndarray, piece: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unique corner nodes of the cubes and the (n, 8) connectivity (:func:`keyed_nodes` on the
+    corners): a node is a (grid corner, body) pair, so cubes of different bodies in one cell share
+    no node."""
+    return keyed_nodes(cells[:, None, :] + HEX_CORNERS[None, :, :], np.asarray(dims, dtype=np.int64) + 1, piece)
 
 
 def piece_labels(cells: np.ndarray, dims: np.ndarray, connectivity: str, piece: np.ndarray) -> tuple[np.ndarray, int]:

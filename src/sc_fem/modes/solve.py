@@ -17,12 +17,12 @@ import numpy as np
 from ..errors import InputError
 from ..fem.assemble import Assembler
 from ..fem.eigen import EigenSolver
-from ..fem.highorder import DEGREES, HighOrderAssembler
+from ..fem.highorder import DEGREES, HighOrderAssembler, HighOrderCubes
 from ..fem.rigid import rigid_body_modes
 from ..fem.static import held_parts, node_parts
 from ..lattice.cubes import CubeModel
 from .basis import ModalBasis
-from .options import Damping, ModalRequest
+from .options import ModalRequest
 
 DEFAULT_N_MODES = 10
 """Modes computed when neither ``n_modes`` nor ``max_frequency`` is given."""
@@ -33,11 +33,6 @@ RIGID_FRACTION = 1e-10
 about ``1e-17 .. 1e-16 * lambda_scale`` (round-off); the first elastic (bending) mode of a free
 200 x 1 x 1-cube rod (q1i), a very floppy voxel model, is at ``4.6e-9 * lambda_scale`` -- 46x above
 the threshold (measured with ``solve_eigen`` on ``CubeModel.box((200, 1, 1), ...)``)."""
-
-
-def damping_ratios(omegas: np.ndarray, *, damping_ratio=None, rayleigh=None) -> tuple[np.ndarray, dict]:
-    """Per-mode damping ratios (k,) and their record: ``Damping(damping_ratio, rayleigh).ratios(omegas)``."""
-    return Damping(ratio=damping_ratio, rayleigh=rayleigh).ratios(omegas)
 
 
 def _unsupported_parts(model: CubeModel, fixed: np.ndarray) -> int:
@@ -79,7 +74,7 @@ def solve_scene(scene, req: ModalRequest) -> Solved:
     t = {}
     t0 = time.perf_counter()
     if req.element in DEGREES:
-        asm = HighOrderAssembler(scene, req.element)
+        asm = HighOrderAssembler(HighOrderCubes(scene, req.element))
         nodes_m = asm.nodes_m
     else:
         asm = Assembler(model, req.element, fixed_dofs=scene.fixed_dofs)
