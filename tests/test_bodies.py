@@ -81,7 +81,22 @@ def test_the_builtins_stay_one_body_with_the_default_weld():
     # cable-to-deck welds are the default weld's
     no_weld = sc_fem.voxelize("builtin:bridge", resolution=16, weld=0.0)
     assert no_weld.info["bodies"] == 3
-    assert bridge.info["welds_by_distance"] > no_weld.info["welds_by_distance"]
+    # a cable and the deck alone: 5 cm apart, one body with the default weld, two with weld 0
+    mesh = sc_fem.load_mesh("builtin:bridge")
+    v = np.asarray(mesh.vertices, dtype=float)
+    parts = mesh_parts(v, np.asarray(mesh.faces))
+    weld = bridge.info["weld"]
+    tri = [v[parts.faces[parts.label == i]] for i in range(parts.n_parts)]
+
+    def gap(a, b):      # smallest distance between two parts, all face pairs
+        return triangle_distance(np.repeat(a, len(b), axis=0), np.tile(b, (len(a), 1, 1))).min()
+
+    gaps = [(i, j) for i in range(parts.n_parts) for j in range(i + 1, parts.n_parts)      # 21 parts
+            if 0.5 * weld < gap(tri[i], tri[j]) <= weld]
+    assert len(gaps) >= 2
+    for i, j in gaps:
+        pair = trimesh.Trimesh(np.vstack([tri[i], tri[j]]).reshape(-1, 3), np.arange(3 * (len(tri[i]) + len(tri[j]))).reshape(-1, 3))
+        assert _bodies(pair, weld).n_bodies == 1 and _bodies(pair, 0.0).n_bodies == 2
 
 
 @pytest.mark.parametrize("name,kwargs,bodies", [

@@ -52,9 +52,11 @@ class Bodies:
         Weld distance used, model units.
     face_pairs : int
         Face pairs whose distance was measured exactly.
-    joined_by_distance, joined_by_containment : int
-        Part pairs joined because their surfaces are within ``weld`` (or cross), and because one
-        part lies inside another's enclosed volume.
+    joined_by_distance : int
+        Joins made because surfaces come within ``weld`` (or cross): the number of groups left by
+        containment alone less the number of bodies.
+    joined_by_containment : int
+        Part pairs joined because one part lies inside another's enclosed volume.
     """
 
     of_part: np.ndarray
@@ -197,6 +199,24 @@ def _groups(edges: list, k: int) -> np.ndarray:
                                         directed=False)[1]
 
 
+def _nearest_joins(tri: np.ndarray, centre: np.ndarray, r: np.ndarray, lab: np.ndarray, group: np.ndarray,
+                   reach: float, k_nearest: int = 8) -> tuple[np.ndarray, int]:
+    """Part pairs (h, 2) joined by a face and one of its ``k_nearest`` faces (by centre) of another
+    part and not yet in one group, within ``reach`` (exact triangle distance); and the number of
+    face pairs measured. Where parts cross or touch, faces of both lie side by side, so this
+    decides most touching part pairs at ``n * k_nearest`` pairs instead of all close pairs."""
+    kq = min(k_nearest + 1, len(centre))
+    if kq < 2:
+        return np.zeros((0, 2), np.int64), 0
+    dist, j = cKDTree(centre).query(centre, k=kq)
+    i = np.repeat(np.arange(len(centre)), kq)
+    j, dist = j.ravel(), dist.ravel()
+    ok = (lab[i] != lab[j]) & (group[lab[i]] != group[lab[j]]) & (dist - r[i] - r[j] <= reach)
+    q = np.unique(np.sort(np.stack([i[ok], j[ok]], axis=1), axis=1), axis=0)
+    hit = q[triangle_distance(tri[q[:, 0]], tri[q[:, 1]]) <= reach] if len(q) else q
+    return np.stack([lab[hit[:, 0]], lab[hit[:, 1]]], axis=1).astype(np.int64), len(q)
+
+
 def _close_pairs(centre: np.ndarray, r: np.ndarray, reach: float) -> np.ndarray:
     """Pairs ``(i, j)`` of faces whose bounding spheres come within ``reach`` (queried per size
     class, so that one large face does not widen every query)."""
@@ -261,6 +281,9 @@ def find_bodies(vertices: np.ndarray, parts: MeshParts, weld: float) -> Bodies:
             inner = cand[w > 0.5]
             edges.append(np.stack([np.full(len(inner), closed[qi]), inner], axis=1))
             n_cont += len(inner)
+    # joins made by distance are counted as the groups left by containment alone less the bodies
+    # (independent of the order in which the search meets the face pairs)
+    n_after_cont = int(_groups(edges, k).max()) + 1
     # distance: exact triangle distances of the face pairs the broad phase finds
     n_pairs = 0
     pairs = _box_pairs(lo, hi, reach)
@@ -269,7 +292,16 @@ def find_bodies(vertices: np.ndarray, parts: MeshParts, weld: float) -> Bodies:
         tri = vertices[parts.faces[near]]
         lab = parts.label[near]
         centre, r = _face_spheres(tri)
-        p = _close_pairs(centre, r, reach)
+        # quick pass: each face against the faces of other parts among its nearest; exact distances,
+        # so it only adds true joins, and part pairs it joins need no all-pairs search
+        hit, tested = _nearest_joins(tri, centre, r, lab, _groups(edges, k), reach)
+        edges.append(hit)
+        n_pairs += tested
+        group = _groups(edges, k)
+        open_pair = group[pairs[:, 0]] != group[pairs[:, 1]]
+        keep = np.isin(lab, pairs[open_pair].ravel())
+        tri, lab, centre, r = tri[keep], lab[keep], centre[keep], r[keep]
+        p = _close_pairs(centre, r, reach) if open_pair.any() else np.zeros((0, 2), np.int64)
         p = p[lab[p[:, 0]] != lab[p[:, 1]]]
         # closest first (by the bound centre distance - radii), and pairs of parts already joined
         # skipped: touching parts are decided by their first few face pairs
@@ -286,11 +318,10 @@ def find_bodies(vertices: np.ndarray, parts: MeshParts, weld: float) -> Bodies:
             s += size
             size = min(2 * size, PAIR_CHUNK)
     e = np.vstack(edges)
-    n_dist = len(np.unique(np.sort(e, axis=1), axis=0)) - n_cont if len(e) else 0
     graph = sparse.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(k, k))
     n, lab_b = csgraph.connected_components(graph, directed=False)
     first_part = np.full(n, k)
     np.minimum.at(first_part, lab_b, np.arange(k))
     rank = np.empty(n, np.int64)
     rank[np.argsort(first_part)] = np.arange(n)
-    return Bodies(rank[lab_b], int(n), float(weld), int(n_pairs), max(int(n_dist), 0), int(n_cont))
+    return Bodies(rank[lab_b], int(n), float(weld), int(n_pairs), n_after_cont - int(n), int(n_cont))

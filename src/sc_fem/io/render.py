@@ -7,10 +7,15 @@ install instead of crashing this process. Images and videos are written atomical
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import itertools
 import os
+import re
+import shutil
 import subprocess
 import sys
+import tempfile
 import warnings
 from pathlib import Path
 
@@ -180,30 +185,168 @@ def plot_cubes_over_mesh(model: CubeModel, mesh, path, *, title: str | None = No
         p.close()
 
 
+class _CornerClock:
+    """Text in the lower right corner, drawn exactly as ``plotter.add_text(text, position="lower_right")``
+    draws it, whose text changes every frame without re-adding an actor.
+
+    pyvista draws a named corner with a ``vtkCornerAnnotation``, which fits its font to the window
+    whenever its text changes (~90 text measurements, ~30 ms a frame). This draws the annotation's
+    lower-right text actor itself (same text mapper, property, justification and position) at the
+    size the annotation's fit gives, fitted once per text shape (digits have one advance width).
+
+    Parameters
+    ----------
+    plotter : pyvista.Plotter
+        The plotter to draw in (its active renderer).
+    text : str
+        The first text.
+    font_size : int
+        ``font_size`` of ``add_text`` (the annotation's linear font scale is half of it).
+    color : str
+        Colour of the text.
+    """
+
+    def __init__(self, plotter, text: str, font_size: int = 10, color: str = "black"):
+        from vtkmodules.vtkRenderingCore import vtkActor2D, vtkTextMapper
+
+        ann = plotter.add_text(text, position="lower_right", font_size=font_size, color=color, render=False)
+        plotter.remove_actor(ann, render=False)         # only its text property and fitting constants
+        self._fit = (ann.GetLinearFontScaleFactor(), ann.GetNonlinearFontScaleFactor(),
+                     ann.GetMaximumLineHeight(), ann.GetMinimumFontSize(), ann.GetMaximumFontSize())
+        self._renderer = plotter.renderer
+        self.mapper = vtkTextMapper()
+        prop = self.mapper.GetTextProperty()
+        prop.ShallowCopy(ann.GetTextProperty())
+        prop.SetJustificationToRight()
+        prop.SetVerticalJustificationToBottom()
+        self.actor = vtkActor2D(mapper=self.mapper, property=ann.GetProperty())
+        self._sizes: dict[str, int] = {}
+        plotter.add_actor(self.actor, reset_camera=False, name="clock", pickable=False, render=False)
+        self.set(text)
+
+    def _fitted_size(self, text: str) -> int:
+        """The font size ``vtkCornerAnnotation::RenderOpaqueGeometry`` gives ``text`` alone in a corner."""
+        linear, nonlinear, line_height, _, largest = self._fit
+        w, h = self._renderer.GetSize()
+        limit = (int(0.9 * w), int(0.9 * h), int(h * line_height) * (text.count("\n") + 1))
+        prop, size, fs = self.mapper.GetTextProperty(), [0, 0], 12
+
+        def excess() -> tuple[int, int, int]:           # text size minus the three limits, pixels
+            prop.SetFontSize(fs)
+            self.mapper.GetSize(self._renderer, size)
+            return size[0] - limit[0], size[1] - limit[1], size[1] - limit[2]
+
+        while max(excess()) < 0 and fs < 100:           # a few dozen sizes, once per text shape
+            fs += 1
+        while max(excess()) > 0 and fs > 0:
+            fs -= 1
+        return min(int(fs ** nonlinear * linear), int(largest))
+
+    def set(self, text: str) -> None:
+        """Show ``text`` (at the annotation's fitted size); the actor stays the same."""
+        w, _ = self._renderer.GetSize()
+        self.actor.SetPosition(w - 5, 5)
+        key = re.sub(r"[0-9]", "0", text)
+        self.mapper.SetInput(text)
+        if key not in self._sizes:
+            self._sizes[key] = self._fitted_size(text)
+        self.mapper.GetTextProperty().SetFontSize(self._sizes[key])
+        self.actor.SetVisibility(self._sizes[key] >= self._fit[3])
+
+
+@contextlib.contextmanager
+def _frame_sink(path: Path, kind: str, fps: float):
+    """Write frames to ``path`` one at a time; the output appears atomically when the block ends
+    without an error.
+
+    Parameters
+    ----------
+    path : Path
+        The output: ``.mp4`` (streamed to ffmpeg, which encodes while the next frames render),
+        ``.gif`` or a folder of PNGs.
+    kind : {".mp4", ".gif", ""}
+        ``path``'s suffix, lower case.
+    fps : float
+        Frames per second of a video.
+
+    Yields
+    ------
+    callable
+        ``write(image)`` for an RGB image of shape (H, W, 3), uint8.
+    """
+    import imageio.v2 as imageio
+
+    if kind == ".mp4":
+        # macro_block_size=1 keeps odd window sizes; yuv420p plays everywhere
+        with atomic_path(path) as tmp, imageio.get_writer(str(tmp), fps=fps, codec="libx264", macro_block_size=1,
+                                                          pixelformat="yuv420p", format="FFMPEG") as w:
+            yield w.append_data
+    elif kind == ".gif":
+        images: list[np.ndarray] = []
+        yield images.append
+        with atomic_path(path) as tmp:
+            imageio.mimsave(str(tmp), images, duration=1.0 / fps, loop=0, format="GIF")
+    else:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmpdir = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+        count = itertools.count()
+        try:
+            yield lambda img: imageio.imwrite(tmpdir / f"frame_{next(count):05d}.png", img)
+            if path.exists():
+                shutil.rmtree(path)
+            os.replace(tmpdir, path)
+        except BaseException:
+            shutil.rmtree(tmpdir, ignore_errors=True)
+            raise
+
+
 def render_animation(frames: np.ndarray, faces: np.ndarray, path, *, fps: float = 30.0,
                      window_size=(960, 720), color: str = "#d9822b", scalars: np.ndarray | None = None,
                      title: str | None = None, progress: bool = False, times=None, up: str = "z",
-                     obstacles=()) -> Path:
+                     obstacles=(), antialias: bool = False) -> Path:
     """Render a vertex animation to ``.mp4``, ``.gif`` or a folder of PNG frames.
+
+    One plotter, one surface actor, the obstacles, the title, the clock and the camera are made once;
+    each frame only overwrites the surface's points (and the clock's text), renders once and hands
+    the image to the writer (an ``.mp4`` is encoded by ffmpeg while the next frames render). The
+    camera is fixed and frames every position of every frame (and the obstacles near the model),
+    so nothing leaves the picture.
 
     Parameters
     ----------
     frames : ndarray, shape (T, n, 3)
         Vertex positions per frame, model units.
     faces : ndarray of int, shape (m, 3)
+        Triangles, indices into the ``n`` vertices.
     path : str or Path
         ``*.mp4``, ``*.gif`` or a directory (created; frames ``frame_00000.png``, ...).
     fps : float
         Frames per second of the video.
+    window_size : (int, int)
+        Width and height of every frame, pixels.
+    color : str
+        Colour of the surface.
+    scalars : ndarray, optional
+        Unused (kept for compatibility).
+    title : str, optional
+        Text in the upper left corner of every frame.
+    progress : bool
+        Show a progress bar on stderr.
     times : array_like, shape (T,), optional
-        Simulated time of each frame, s: stamped in a corner of every frame.
+        Simulated time of each frame, s: stamped in the lower right corner of every frame.
     up : {"x", "y", "z"}
         The model's up axis (drawn upward).
     obstacles : sequence
         Contact obstacles (:mod:`sc_fem.dynamics.contact`) to draw.
+    antialias : bool
+        pyvista's multisample anti-aliasing (4 samples on EGL). Off by default: on software OpenGL
+        (llvmpipe, the headless default) it costs ~100 ms a frame at 960x720, three times the rest
+        of the frame; off, edges are one-pixel stairs and every other pixel is the same.
 
-    The camera is fixed and frames every position of every frame (and the obstacles near the
-    model), so nothing leaves the picture.
+    Returns
+    -------
+    Path
+        ``path``.
     """
     frames = np.asarray(frames, dtype=float)
     if frames.ndim != 3 or frames.shape[2] != 3 or len(frames) == 0:
@@ -213,13 +356,15 @@ def render_animation(frames: np.ndarray, faces: np.ndarray, path, *, fps: float 
     if kind not in (".mp4", ".gif", ""):
         raise InputError(f"unsupported animation output {path.name!r}: use .mp4, .gif or a folder")
     pvm = pv()
-    import imageio.v2 as imageio
+    from tqdm import tqdm
 
-    mesh = surface_polydata(frames[0], faces)
-    p = pvm.Plotter(off_screen=True, window_size=tuple(window_size))
+    mesh = surface_polydata(frames[0].copy(), faces)   # its points are overwritten in place
     stamps = None if times is None else as_float_array(times, "times", (len(frames),))
     lo, hi = frames.min(axis=(0, 1)), frames.max(axis=(0, 1))
+    p = pvm.Plotter(off_screen=True, window_size=tuple(window_size))
     try:
+        if not antialias:
+            p.disable_anti_aliasing()
         p.set_background("white")
         p.add_mesh(mesh, color=color, smooth_shading=False)
         for ob in obstacle_meshes(obstacles, np.vstack([lo, hi])):
@@ -233,43 +378,18 @@ def render_animation(frames: np.ndarray, faces: np.ndarray, path, *, fps: float 
             g[:, ground[0].axis] = ground[0].z
             box = np.vstack([box, g])
         frame_camera(p, box, up)
-        from tqdm import tqdm
-
-        images = []
-        for k in tqdm(range(len(frames)), desc="render", disable=not progress, file=sys.stderr):
-            mesh.points = frames[k]
-            if stamps is not None:
-                p.add_text(f"t = {stamps[k]:.3f} s", position="lower_right", font_size=10, color="black",
-                           name="clock")
-            p.render()
-            images.append(p.screenshot(return_img=True))
+        clock = None if stamps is None else _CornerClock(p, f"t = {stamps[0]:.3f} s")
+        points = mesh.points                          # a view of the VTK points: written in place
+        with _frame_sink(path, kind, fps) as write:
+            for k in tqdm(range(len(frames)), desc="render", disable=not progress, file=sys.stderr):
+                points[:] = frames[k]
+                mesh.Modified()
+                if clock is not None:
+                    clock.set(f"t = {stamps[k]:.3f} s")
+                p.render()                            # no-op before the first screenshot, which renders
+                write(p.screenshot(return_img=True))
     finally:
         p.close()
-    if kind == "":
-        import shutil
-        import tempfile
-
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmpdir = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
-        try:
-            for k, img in enumerate(images):
-                imageio.imwrite(tmpdir / f"frame_{k:05d}.png", img)
-            if path.exists():
-                shutil.rmtree(path)
-            os.replace(tmpdir, path)
-        except BaseException:
-            shutil.rmtree(tmpdir, ignore_errors=True)
-            raise
-        return path
-    with atomic_path(path) as tmp:
-        if kind == ".mp4":
-            # macro_block_size=1 keeps odd window sizes; yuv420p plays everywhere
-            with imageio.get_writer(str(tmp), fps=fps, codec="libx264", macro_block_size=1,
-                                    pixelformat="yuv420p", format="FFMPEG") as w:
-                for img in images:
-                    w.append_data(img)
-        else:
-            imageio.mimsave(str(tmp), images, duration=1.0 / fps, loop=0, format="GIF")
     return path
 
 

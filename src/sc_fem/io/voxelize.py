@@ -20,7 +20,7 @@ def _bodies_line(model: CubeModel) -> str:
         return f"{model.n_components} (topology {info.get('topology', 'grid')}: cubes glue what they share)"
     shared = int(np.sum(np.diff(np.ravel_multi_index(model.cells.T, model.dims)) == 0))
     return (f"{model.n_components} kept of {info.get('bodies', 1)} (weld {info.get('weld', 0):.4g} model units: "
-            f"{info.get('welds_by_distance', 0)} part pairs welded by distance, "
+            f"{info.get('welds_by_distance', 0)} joins by distance, "
             f"{info.get('welds_by_containment', 0)} by nesting; {info.get('loose_bodies', 0)} loose; "
             f"{shared} cells hold cubes of two bodies)")
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from .gridcut import cut_by_grid
-from .cubes import voxel_index
+from .topology import unique_cells, voxel_index
 from .moments import FULL, box_moments, column_moments
 from ..geometry.sampling import Samples, volume_samples
 
@@ -49,7 +49,7 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
     Surface cells of closed-but-leaky parts (holes) and of parts forced solid get ``n_sub^3``
     inside-tested sub-cube samples.
     """
-    from ..geometry.inside import winding_number
+    from ..geometry.inside import crossing_number, winding_number
 
     dims = np.array(occupied.shape)
     solid_faces = solid_part[parts.label]
@@ -61,7 +61,9 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
     region = np.zeros_like(occupied)
     region[tuple(slice(a, b) for a, b in zip(lo, hi))] = True
     free = np.argwhere(region & ~occupied)
-    w_free = winding_number(sv, sf, origin + pitch * (free + 0.5))
+    # closed parts have integer winding numbers: exact ray crossings; leaky ones need the generalized
+    w_all = crossing_number if (parts.watertight | ~solid_part).all() else winding_number
+    w_free = w_all(sv, sf, origin + pitch * (free + 0.5))
     interior, w_interior = free[w_free > 0.5], w_free[w_free > 0.5]
 
     tight_part = solid_part & parts.watertight
@@ -73,7 +75,7 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
     if tight.any():
         tf = parts.faces[tight_part[parts.label]]
         if leaky.any():     # interior cells of the closed parts; the others are leaky parts'
-            w_interior = winding_number(vertices, tf, origin + pitch * (interior + 0.5))
+            w_interior = crossing_number(vertices, tf, origin + pitch * (interior + 0.5))
         in_tight = w_interior > 0.5
         tight_interior, interior = interior[in_tight], interior[~in_tight]
         # an untouched cube inside k intersecting closed parts is counted k times by the columns
@@ -100,18 +102,18 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
         buried = np.zeros(len(pts), dtype=bool)
         # just inside its own part, a sample sees winding number 1, or more where another part
         # overlaps (this also catches coplanar faces of parts resting flush on one another)
-        buried[maybe] = winding_number(vertices, tf, pts[maybe] - eps * n[maybe]) >= 1.5
+        buried[maybe] = crossing_number(vertices, tf, pts[maybe] - eps * n[maybe]) >= 1.5
         if buried.any():
             # sub-cube spacing about 1/256 of the grid's longest side, whatever the resolution
             n_ov = max(n_sub, -(-OVERLAP_SAMPLES_PER_SIDE // int(dims.max())))
             o_offs = (np.stack(np.meshgrid(*[np.arange(n_ov)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5) / n_ov
-            ocells = np.unique(voxel_index(pts[buried], origin, pitch, dims), axis=0)
+            ocells = unique_cells(voxel_index(pts[buried], origin, pitch, dims), dims)
             sub = origin + pitch * (ocells[:, None, :] + o_offs[None]).reshape(-1, 3)
-            excess = np.clip(np.rint(winding_number(vertices, tf, sub)) - 1.0, 0.0, None)
+            excess = np.clip(np.rint(crossing_number(vertices, tf, sub)) - 1.0, 0.0, None)
             lin_b = np.ravel_multi_index(bcells.T, dims)
             at = np.searchsorted(lin_b, np.ravel_multi_index(ocells.T, dims))
-            sub_m = box_moments(np.tile(o_offs - 0.5 / n_ov, (len(ocells), 1)), 1.0 / n_ov)
-            mom[at] -= (excess[:, None] * sub_m).reshape(len(ocells), -1, 27).sum(axis=1)
+            # every cell has the same sub-boxes: (cells, q) excess times (q, 27) sub-box moments
+            mom[at] -= excess.reshape(len(ocells), -1) @ box_moments(o_offs - 0.5 / n_ov, 1.0 / n_ov)
         vol = mom[:, 0] * pitch**3
         keep = vol > 1e-9 * pitch**3
         pieces.append(Samples(origin + pitch * (bcells[keep] + 0.5), vol[keep],
@@ -119,13 +121,13 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
     full = volume_samples(interior, origin, pitch)
     pieces.append(Samples(full.points, full.weight, full.face, np.tile(FULL / 8.0, (len(full), 1))))
     if leaky.any():
-        bcells = np.unique(voxel_index(surf.points[leaky], origin, pitch, dims), axis=0)
+        bcells = unique_cells(voxel_index(surf.points[leaky], origin, pitch, dims), dims)
         pts = origin + pitch * (bcells[:, None, :] + offs[None]).reshape(-1, 3)
         inside = winding_number(sv, sf, pts) > 0.5
         if tight_part.any():        # not where a watertight part already counted the volume
             tf = parts.faces[tight_part[parts.label]]
-            inside[inside] = winding_number(vertices, tf, pts[inside]) < 0.5
-        sub_m = box_moments(np.tile(offs - 0.5 / n_sub, (len(bcells), 1))[inside], 1.0 / n_sub)
+            inside[inside] = crossing_number(vertices, tf, pts[inside]) < 0.5
+        sub_m = box_moments(offs - 0.5 / n_sub, 1.0 / n_sub)[np.tile(np.arange(len(offs)), len(bcells))[inside]]
         pieces.append(Samples(pts[inside], np.full(int(inside.sum()), pitch**3 / n_sub**3),
                               np.full(int(inside.sum()), -1, dtype=np.int64), sub_m))
     return Samples(np.vstack([q.points for q in pieces]), np.concatenate([q.weight for q in pieces]),

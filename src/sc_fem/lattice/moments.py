@@ -25,6 +25,9 @@ from functools import lru_cache
 
 import numpy as np
 
+from . import moments_jit
+from .._jit import choose_kernel
+
 EXPONENTS = np.array([(a, b, c) for a in range(3) for b in range(3) for c in range(3)], dtype=np.int64)
 """The 27 exponent triples (a, b, c), moment ``k`` is ``xi^a eta^b zeta^c`` with ``(a, b, c) = EXPONENTS[k]``."""
 
@@ -53,7 +56,7 @@ def _triangle_rule() -> tuple[np.ndarray, np.ndarray]:
 
 
 def piece_integrals(pieces: np.ndarray, cells: np.ndarray, origin: np.ndarray,
-                    pitch: float, chunk: int = 65536) -> tuple[np.ndarray, np.ndarray]:
+                    pitch: float, chunk: int = 65536, kernel: str = "auto") -> tuple[np.ndarray, np.ndarray]:
     """Surface integrals of the pieces (each inside one cube) in that cube's reference frame.
 
     Parameters
@@ -64,6 +67,11 @@ def piece_integrals(pieces: np.ndarray, cells: np.ndarray, origin: np.ndarray,
         The cube of each piece.
     origin, pitch
         The grid.
+    chunk : int
+        Pieces integrated at a time by the numpy path (bounded memory).
+    kernel : {"auto", "numba", "numpy"}
+        The compiled kernel (:mod:`sc_fem.lattice.moments_jit`, with numba) or the numpy path;
+        they agree to round-off.
 
     Returns
     -------
@@ -76,15 +84,22 @@ def piece_integrals(pieces: np.ndarray, cells: np.ndarray, origin: np.ndarray,
     inner = np.empty((len(pieces), 27))
     column = np.empty((len(pieces), 9))
     div = 1.0 / np.arange(1, 4)                                       # 1 / (c + 1)
+    if choose_kernel(kernel) == "numba" and len(pieces):
+        moments_jit.piece_integrals(np.ascontiguousarray(pieces, dtype=np.float64), np.ascontiguousarray(cells, dtype=np.int64),
+                                    np.asarray(origin, dtype=np.float64), float(pitch), st, w, inner, column)
+        return inner, column
     for s in range(0, len(pieces), chunk):          # bounded memory: chunks of pieces
         t = (pieces[s:s + chunk] - origin) / pitch - cells[s:s + chunk, None, :]     # (k, 3, 3) reference
         az = 0.5 * np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])[:, 2]            # signed projected area
         q = t[:, None, 0] + st[None, :, :1] * (t[:, None, 1] - t[:, None, 0]) \
             + st[None, :, 1:] * (t[:, None, 2] - t[:, None, 0])                     # (k, q, 3)
-        pw = q[..., None] ** np.arange(4)                                            # (k, q, 3 axes, 4 powers)
-        xy = np.einsum("kqa,kqb->kqab", pw[:, :, 0, :3], pw[:, :, 1, :3]).reshape(len(t), -1, 9)
-        wxy = xy * (w * 1.0)[None, :, None]
-        inner[s:s + chunk] = az[:, None] * (np.einsum("kqm,kqc->kmc", wxy, pw[:, :, 2, 1:]) * div).reshape(-1, 27)
+        pw = np.empty(q.shape + (4,))                                               # (k, q, 3 axes, 4 powers)
+        pw[..., 0] = 1.0
+        for k in range(1, 4):                       # powers by products (4 of them, not per piece)
+            pw[..., k] = pw[..., k - 1] * q
+        xy = (pw[:, :, 0, :3, None] * pw[:, :, 1, None, :3]).reshape(len(t), -1, 9)
+        wxy = xy * w[None, :, None]
+        inner[s:s + chunk] = az[:, None] * (np.matmul(wxy.transpose(0, 2, 1), pw[:, :, 2, 1:]) * div).reshape(-1, 27)
         column[s:s + chunk] = az[:, None] * wxy.sum(axis=1)
     return inner, column
 

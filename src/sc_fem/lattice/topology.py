@@ -30,6 +30,14 @@ def voxel_index(points: np.ndarray, origin: np.ndarray, pitch: float, dims: np.n
     return np.clip(np.floor((points - origin) / pitch).astype(np.int64), 0, np.asarray(dims) - 1)
 
 
+def unique_cells(cells: np.ndarray, dims: np.ndarray) -> np.ndarray:
+    """The distinct cells of ``cells`` (n, 3) int in a grid of ``dims``, shape (m, 3), sorted in
+    C order (as ``np.unique(cells, axis=0)``, by their linear index: a 1-D sort, not a row sort)."""
+    dims = np.asarray(dims, dtype=np.int64)
+    lin = np.unique(np.ravel_multi_index(np.asarray(cells, dtype=np.int64).T, dims))
+    return np.stack(np.unravel_index(lin, dims), axis=1).astype(np.int64)
+
+
 def keyed_nodes(points: np.ndarray, ndims: np.ndarray, piece: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Number the lattice points that cubes carry, a node per (lattice point, body), vectorized.
 
