@@ -9,7 +9,6 @@ import pytest
 import shapes
 from sc_fem import Scene
 from sc_fem._cli.main import main
-from sc_fem.dynamics.driver import record
 from sc_fem.dynamics.job import run_simulation
 from sc_fem.dynamics.loads import PATCH_RADIUS, impulse_nodes
 from sc_fem.dynamics.newmark import Newmark

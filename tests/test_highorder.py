@@ -8,12 +8,11 @@ import warnings
 
 import numpy as np
 import pytest
-import trimesh
 
 import sc_fem
 from sc_fem.errors import InputError
 from sc_fem.fem.highorder import (HighOrderAssembler, HighOrderCubes, _stiffness_from_G, lagrange_1d,
-                                  shape_functions, sigma_points)
+                                  sigma_points)
 from sc_fem.lattice.moments import EXPONENTS, box_moments
 from sc_fem.scene import Scene
 

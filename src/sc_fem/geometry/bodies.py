@@ -23,7 +23,6 @@ from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from .inside import MeshParts, winding_number
-from .sampling import grid_counts, surface_grid_samples
 
 DEFAULT_WELD_FRACTION = 0.005
 """Default weld distance: 0.5 % of the model's longest bounding-box extent (independent of the
