@@ -48,6 +48,8 @@ _LAZY: dict[str, str] = {
     "CentralDifference": ".dynamics.central", "critical_time_step": ".dynamics.base",
     "XPBDSolver": ".dynamics.xpbd", "XPBDState": ".dynamics.xpbd", "XPBDEnergy": ".dynamics.xpbd",
     "simulate_xpbd": ".dynamics.xpbd", "rope_scene": ".dynamics.rope_scene", "RopeScene": ".dynamics.rope_scene",
+    # messages (the "sc_fem" logger)
+    "log_to_stderr": "._log",
 }
 
 # subpackages by pipeline stage

@@ -11,6 +11,7 @@ import sys
 import warnings
 
 from .. import __version__
+from .._log import stderr_messages
 from .._atomic import check_output
 from ..errors import ScFemError, ScFemWarning
 from . import cmd_demo, cmd_export, cmd_modes, cmd_reconstruct, cmd_simulate, cmd_voxelize
@@ -49,7 +50,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         _check_outputs(args)
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), stderr_messages("WARNING" if getattr(args, "quiet", False) else "INFO"):
             warnings.simplefilter("always", ScFemWarning)              # each as one line, no source excerpt
             warnings.showwarning = lambda m, *a, **k: print(f"sc-fem {args.command}: warning: {m}", file=sys.stderr)
             return int(args.func(args) or 0)

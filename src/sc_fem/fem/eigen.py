@@ -43,12 +43,15 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator, eigsh
 
+from .._log import logger
 from .._validate import positive_int
 from ..errors import InputError, SolverError
 from .multigrid import JACOBI, BlockVCycle, _seeded_global_random
 # EigenOptions and lobpcg_memory_estimate are re-exported: the eigensolver's names stay importable from here
 from .options import (METHODS, EigenOptions, choose_method, factor_memory_estimate,  # noqa: F401
                       lobpcg_memory_estimate, memory_budget)
+
+_LOG = logger.getChild("eigen")
 
 SHIFT_FRACTION = 1e-7
 """The shift is ``-SHIFT_FRACTION * mean(diag K) / mean(diag M)``: far below every elastic
@@ -266,6 +269,8 @@ class EigenSolver:
         self._info["factor_memory_estimate"] = factor_memory_estimate(self.n, self.K.nnz)
         self.n_setups += 1
         self._setup_seconds += time.perf_counter() - t0
+        what = f"{self.backend} factorization" if self.method == "shift-invert" else f"AMG hierarchy ({self._info['levels']} levels)"
+        _LOG.info(f"    {what} of {self.n:,} DOFs: {time.perf_counter() - t0:.2f} s")
 
     def _lobpcg_failed(self, worst: float, info: dict) -> None:
         """LOBPCG stopped with a wanted pair's relative residual above :data:`LOBPCG_ACCEPT`: switch
@@ -344,6 +349,7 @@ class EigenSolver:
                 lam, V = lam[order], V[:, order]
                 R = Ap(V[:, :k]) - Mp(V[:, :k]) * lam[None, :k]
                 worst = float(np.linalg.norm(R, axis=0).max()) / tol_abs
+                _LOG.info(f"    LOBPCG round {rounds}: {its} iterations, largest residual {worst:.3g} x the tolerance")
                 if worst <= 1.0:
                     break
                 if its >= self.maxiter:

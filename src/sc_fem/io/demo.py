@@ -7,12 +7,12 @@ Pictures of the chair and bridge cubes over their meshes; the chair's modes with
 
 from __future__ import annotations
 
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from .._log import logger, say
 from ..errors import RenderError, ScFemError
 from .report import JobResult
 
@@ -82,8 +82,7 @@ def demo_modal(out: str | Path, *, resolution: int = 24, n_modes: int = 8) -> li
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     basis = modal("builtin:chair", resolution=resolution, n_modes=n_modes, fix=list(models.fix_specs("chair")))
-    print(f"chair modes: {basis.n_cubes} cubes, f = "
-          + ", ".join(f"{f:.3g}" for f in basis.frequencies) + " Hz", file=sys.stderr)
+    say(f"chair modes: {basis.n_cubes} cubes, f = " + ", ".join(f"{f:.3g}" for f in basis.frequencies) + " Hz")
     written = [save_modes(basis, out / "chair.modes.npz"),
                modes_sheet(basis, out / "chair_modes_sheet.png", n_modes=6)]
     player = ModalPlayer(basis)
@@ -125,7 +124,7 @@ def demo_engine(out: str | Path) -> list[Path]:
     try:
         written.append(write_viewer(basis, out / "chair.html"))
     except RenderError as exc:              # no npm where make demo ran: say so, keep the rest
-        print(f"demo: no web viewer ({exc})", file=sys.stderr)
+        logger.warning(f"demo: no web viewer ({exc})")
     return written
 
 
@@ -159,7 +158,7 @@ def demo_dynamics(out: str | Path, *, resolution: int = 16) -> list[Path]:
         written.append(write_animation(out / "bridge_gust.gif", scene, rec, exaggerate=2000.0, fps=25,
                                        title="bridge: gust + gravity, Newmark (x2000, 10x slow motion)"))
     except RenderError as exc:
-        print(f"demo_dynamics: no video ({exc})", file=sys.stderr)
+        logger.warning(f"demo_dynamics: no video ({exc})")
     return written
 
 
@@ -231,8 +230,7 @@ def run_demo(out_dir: str | Path = "out", *, resolution: int = 40, verbose: bool
              ("XPBD cube-rope and PDE reconstruction", lambda: demo_rope(out, verbose=verbose))]
     written: list[Path] = []
     for title, fn in steps:
-        if verbose:
-            print(f"== {title}", file=sys.stderr, flush=True)
+        say(f"== {title}", verbose)
         written += fn()
     lines = [f"\ndemo finished in {time.perf_counter() - t0:.1f} s; outputs in {out.resolve()}:",
              *(f"  {p}" for p in written)]

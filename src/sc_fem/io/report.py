@@ -8,11 +8,12 @@ person. With ``verbose=True`` they print every stage and its time on stderr (:fu
 
 from __future__ import annotations
 
-import sys
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, Iterator
+
+from .._log import say
 
 
 @dataclass(frozen=True, eq=False)
@@ -55,7 +56,7 @@ class JobResult:
 @contextmanager
 def stage(name: str, timings: dict, verbose: bool = False) -> Iterator[None]:
     """Time a stage: ``timings[name]`` in seconds, and with ``verbose`` ``[name] ...`` and
-    ``[name] 1.23 s`` lines on stderr.
+    ``[name] 1.23 s`` lines on the ``sc_fem`` logger (:mod:`sc_fem._log`).
 
     Parameters
     ----------
@@ -64,19 +65,17 @@ def stage(name: str, timings: dict, verbose: bool = False) -> Iterator[None]:
     timings : dict
         Receives ``name: seconds`` when the stage ends without an error.
     verbose : bool
-        Print the stage's start and time on stderr.
+        Log the stage's start and time.
 
     Yields
     ------
     None
     """
     t0 = time.perf_counter()
-    if verbose:
-        print(f"[{name}] ...", file=sys.stderr, flush=True)
+    say(f"[{name}] ...", verbose)
     yield
     timings[name] = time.perf_counter() - t0
-    if verbose:
-        print(f"[{name}] {timings[name]:.2f} s", file=sys.stderr, flush=True)
+    say(f"[{name}] {timings[name]:.2f} s", verbose)
 
 
 def table(rows: list[tuple[str, str]]) -> str:

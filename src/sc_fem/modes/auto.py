@@ -16,7 +16,8 @@ from ..lattice.options import VoxelOptions
 from ..scene import Scene
 from .basis import ModalBasis
 from .options import AutoResolution, ModalRequest
-from .solve import finish, log_stage, solve_scene
+from .._log import say
+from .solve import finish, solve_scene
 
 
 def modal_auto(mesh, auto: AutoResolution, voxel: VoxelOptions, req: ModalRequest, *, fix, fix_vertices,
@@ -33,7 +34,7 @@ def modal_auto(mesh, auto: AutoResolution, voxel: VoxelOptions, req: ModalReques
         scene = Scene.from_mesh(mesh, voxel, resolution=r, fix=fix, fix_vertices=fix_vertices)
         lattice = scene.model
         t_vox = time.perf_counter() - t0
-        log_stage(f"[auto] resolution {r}: {lattice.n_cubes} cubes, {lattice.n_dofs} DOFs", req.progress)
+        say(f"[auto] resolution {r}: {lattice.n_cubes} cubes, {lattice.n_dofs} DOFs", req.progress)
         prev, cur = cur, None                                     # drop the grid before prev first
         cur = solve_scene(scene, req)
         cur.timings["voxelize"] = t_vox

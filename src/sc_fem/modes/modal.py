@@ -46,7 +46,8 @@ from ..scene import Scene
 from .auto import modal_auto
 from .basis import ModalBasis
 from .options import AutoResolution, Damping, ModalRequest, parse_resolution
-from .solve import finish, log_stage, solve_scene
+from .._log import say
+from .solve import finish, solve_scene
 
 if TYPE_CHECKING:
     from ..lattice.boundary import Fix
@@ -149,5 +150,5 @@ def modal(model: Any, *, n_modes: int | None = None, max_frequency: float | None
     t0 = time.perf_counter()
     scene = Scene.from_mesh(src_mesh, vopts, fix=fix, fix_vertices=fix_vertices)
     timings["voxelize"] = time.perf_counter() - t0
-    log_stage(f"  voxelized: {scene.model.n_cubes} cubes, {scene.model.n_dofs} DOFs", progress)
+    say(f"  voxelized: {scene.model.n_cubes} cubes, {scene.model.n_dofs} DOFs", progress)
     return finish(solve_scene(scene, req), req, timings)

@@ -7,13 +7,13 @@ stiffest element) and removed unless ``keep_rigid=True`` (then flagged in ``Moda
 
 from __future__ import annotations
 
-import sys
 import time
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from .._log import say
 from ..errors import InputError
 from ..fem.assemble import Assembler
 from ..fem.eigen import EigenSolver
@@ -40,11 +40,6 @@ def _unsupported_parts(model: CubeModel, fixed: np.ndarray) -> int:
     labels = node_parts(model)
     n_parts = int(labels.max()) + 1
     return int(n_parts - held_parts(model, labels, fixed, n_parts).sum())
-
-
-def log_stage(msg: str, progress: bool) -> None:
-    if progress:
-        print(msg, file=sys.stderr, flush=True)
 
 
 @dataclass(frozen=True, eq=False)
@@ -104,8 +99,8 @@ def solve_scene(scene, req: ModalRequest) -> Solved:
         lam = eig.eigenvalues
         rigid = lam < RIGID_FRACTION * scale
         n_el = int((~rigid).sum())
-        log_stage(f"  eigensolve: {k} pairs, {eig.method}/{eig.backend}, {n_el} elastic, "
-             f"top {np.sqrt(max(lam[-1], 0)) / 2 / np.pi:.4g} Hz", progress)
+        say(f"  eigensolve: {k} pairs, {eig.method}/{eig.backend}, {n_el} elastic, "
+            f"top {np.sqrt(max(lam[-1], 0)) / 2 / np.pi:.4g} Hz", progress)
         done = (want is not None and n_el >= want) or (lam_max is not None and lam[-1] >= lam_max)
         if done or k >= k_cap:
             break
