@@ -231,7 +231,9 @@ def run_demo(out_dir: str | Path = "out", *, resolution: int = 40, verbose: bool
     written: list[Path] = []
     for title, fn in steps:
         say(f"== {title}", verbose)
+        t_step = time.perf_counter()
         written += fn()
+        say(f"   {time.perf_counter() - t_step:.1f} s", verbose)
     lines = [f"\ndemo finished in {time.perf_counter() - t0:.1f} s; outputs in {out.resolve()}:",
              *(f"  {p}" for p in written)]
     html = out / "chair.html"
