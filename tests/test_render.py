@@ -224,3 +224,17 @@ def test_the_clock_draws_like_a_corner_annotation():
                 p.close()
             assert (imgs[0] < 128).any()                              # some text is drawn
             assert np.abs(imgs[0] - imgs[1]).max() == 0, (size, text)
+
+
+def test_play_title_says_what_excited_the_model_and_the_magnification(tmp_path, monkeypatch):
+    """A video states its excitation and its magnification (or true scale) in its title."""
+    import sc_fem.io.render as render
+    from sc_fem.io.playback import play_modes
+
+    titles = []
+    monkeypatch.setattr(render, "render_animation", lambda frames, faces, out, **kw: titles.append(kw["title"]) or out)
+    basis = sc_fem.modal("builtin:beam", resolution=6, n_modes=3)
+    play_modes(basis, tmp_path / "a.gif", impulse=(0, (1.0, 0.0, 0.0)), duration=0.1, fps=10, exaggerate=50.0)
+    play_modes(basis, tmp_path / "b.gif", mode=1, duration=0.1, fps=10)
+    assert "impulse (1, 0, 0) N s at vertex 0" in titles[0] and "x50" in titles[0]
+    assert "mode 1" in titles[1] and "true scale" in titles[1]

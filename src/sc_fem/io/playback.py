@@ -90,7 +90,13 @@ def play_modes(modes: Any, output: str | Path | None = None, *,
         frames = b.vertices[None] + exaggerate * (frames - b.vertices[None])
     for w in playback_warnings(b, frames, fps, exaggerate):
         warnings.warn(w, ScFemWarning, stacklevel=2)
-    title = f"{b.source}: {b.n_modes} modes, {b.frequencies[0]:.3g}..{b.frequencies[-1]:.3g} Hz"
+    if impulse is not None:
+        j = ", ".join(f"{float(x):.3g}" for x in impulse[1])
+        what = f"impulse ({j}) N s at vertex {int(impulse[0])}" + (f" + mode {mode} displaced" if mode is not None else "")
+    else:
+        what = f"mode {0 if mode is None else mode} ({b.frequencies[0 if mode is None else mode]:.3g} Hz) displaced"
+    title = (f"{b.source}: {b.n_modes} modes, {b.frequencies[0]:.3g}..{b.frequencies[-1]:.3g} Hz; {what}"
+             + (f"; motion x{exaggerate:g}" if exaggerate != 1.0 else "; true scale"))
     path = render_animation(np.asarray(frames), b.faces, output, fps=fps, title=title, progress=progress,
                             times=np.arange(len(frames)) / fps, up=up)
     return JobResult(written=[path], result=b, text=f"wrote {path} ({len(frames)} frames at {fps:g} fps)")

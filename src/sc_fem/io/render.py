@@ -177,8 +177,11 @@ def plot_cubes_over_mesh(model: CubeModel, mesh, path, *, title: str | None = No
         p.set_background("white")
         p.add_mesh(surface_polydata(mesh.vertices, mesh.faces), color="#d9822b", smooth_shading=False)
         p.add_mesh(cubes_grid(model), color="#3a7bd5", opacity=0.35, show_edges=True, edge_color="#1b3a66")
-        text = title or f"{model.info.get('source', '')}: {model.n_cubes} cubes, pitch {model.pitch:.3g}"
+        text = title or (f"{model.info.get('source', '')}: {model.n_cubes:,} cubes, pitch {model.pitch:.3g} "
+                         f"model units (h = {model.h:.3g} m)")
         p.add_text(text, font_size=10, color="black")
+        p.add_legend([["source mesh", "#d9822b"], ["cubes", "#3a7bd5"]], bcolor="white", size=(0.16, 0.08),
+                     loc="lower left")
         frame_camera(p, np.vstack([model.nodes, np.asarray(mesh.vertices, dtype=float)]), up)
         return write_png(p, path)
     finally:
