@@ -1,26 +1,27 @@
-"""``sc-fem export`` (glTF 2.0 for engines, Blender and the browser) and ``sc-fem view`` (one HTML
-page that plays the modes in real time)."""
+"""``sc-fem export`` (glTF 2.0 for engines, Blender and the browser; OpenUSD; .vtu) and ``sc-fem view`` (one
+HTML page that plays the modes in real time)."""
 
 from __future__ import annotations
 
 from ..errors import InputError
+from ..io.export import EXPORT_FORMATS
 from .common import add_quiet, add_up_arg, command, finish
 
 
 def register(sub) -> None:
-    p = command(sub, "export", run_export, outputs=(".glb", ".gltf", ".vtu"),
-                help="write modes or an animation as glTF 2.0 (.glb/.gltf): modes as morph targets",
-                description="Write a mode file as glTF 2.0, +Y up (the model's --up axis turned onto it) and in "
-                            "metres, with a dielectric double-sided material and vertex normals: the source mesh "
-                            "with two morph targets per mode, +mode and -mode, so every weight is in [0, 1] (weight "
-                            "1 = --amplitude of the model's size; normal deltas on every target; the scales, "
-                            "frequencies, damping and which target is which in meshes[0].extras.sc_fem), optionally "
-                            "a baked playback (--impulse or --mode) as a weights animation. An animation file "
-                            "(sc-fem simulate .npz) is written as one morph target per frame with a weights channel. "
-                            "A mode file stores no UVs: give the source mesh with --mesh to keep its UVs.")
+    p = command(sub, "export", run_export, outputs=tuple(EXPORT_FORMATS),
+                help="write modes or an animation as glTF 2.0 (.glb/.gltf), OpenUSD (.usd/.usda/.usdc) or .vtu",
+                description="glTF 2.0: +Y up (the model's --up axis turned onto it), metres, a dielectric material, "
+                            "normals; two morph targets per mode (+mode, -mode: every weight in [0, 1]; weight 1 = "
+                            "--amplitude of the model's size; scales, frequencies, damping in meshes[0].extras), "
+                            "a baked playback (--impulse or --mode) as a weights animation, an animation (sc-fem "
+                            "simulate .npz) as one morph target per frame. OpenUSD (pip install 'sc_fem[usd]'): "
+                            "metres, upAxis from --up, one UsdSkel blend shape per mode (frequency, damping, scale as "
+                            "scfem: attributes), a baked playback as weight time samples at --fps, an animation as "
+                            "time-sampled points at its frame rate. A mode file stores no UVs: --mesh keeps them.")
     p.add_argument("source", metavar="FILE", help="mode file or animation file (.npz)")
-    p.add_argument("-o", "--output", required=True,
-                   help="output .glb (or .gltf); .vtu: the mode shapes for ParaView (one point array per mode)")
+    p.add_argument("-o", "--output", required=True, help="output .glb (or .gltf); .usd/.usda/.usdc: OpenUSD (usdview, "
+                   "Blender, Houdini); .vtu: the mode shapes for ParaView (one point array per mode)")
     p.add_argument("--amplitude", type=float, default=0.05,
                    help="largest displacement of a mode at weight 1, fraction of the bounding-box diagonal (0.05)")
     g = p.add_mutually_exclusive_group()
@@ -30,10 +31,9 @@ def register(sub) -> None:
     p.add_argument("--duration", type=float, default=2.0, help="seconds of baked playback (2)")
     p.add_argument("--fps", type=float, default=30.0,
                    help="samples per second of the baked playback (30); moving modes above fps/2 alias (a warning)")
-    add_up_arg(p, uses="the exported glTF turns it onto +Y, the up axis of glTF, three.js and Blender")
-    p.add_argument("--mesh", metavar="MESH", default=None,
-                   help="the source mesh the file was computed from (same vertices): its UVs become TEXCOORD_0 "
-                        "and its file normals, if any, NORMAL")
+    add_up_arg(p, uses="glTF turns it onto +Y (the up axis of glTF, three.js, Blender); USD's upAxis (x: onto +Y)")
+    p.add_argument("--mesh", metavar="MESH", default=None, help="the source mesh the file was computed from (same "
+                   "vertices): its UVs (glTF TEXCOORD_0, USD primvars:st) and its file normals, if any, are kept")
     add_quiet(p)
 
     v = command(sub, "view", run_view, outputs=(".html", ".htm"),
