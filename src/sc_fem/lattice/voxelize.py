@@ -27,7 +27,7 @@ from ..material import Material
 from .cubes import CubeModel
 from .grid import SPACING_FRACTION, _memory_guard, _point_cloud_pitch, _point_spacing, grid_for, hash_samples
 from .mass import _sample_material
-from .moments import FULL
+from .moments import FULL, valid_moments
 from .options import DEFAULT_SUBSAMPLES, FILLS, STIFFNESS, VoxelOptions  # noqa: F401 (re-exported)
 from .pieces import _body_samples, _find_bodies, _keep
 
@@ -143,9 +143,10 @@ def voxelize(mesh: Any, options: VoxelOptions | None = None, **fields: Any) -> C
     fraction = np.clip(volume / pitch**3, 0.0, 1.0)
     full = _full_within_roundoff(moments, origin, pitch, dims)
     moments[full], fraction[full] = FULL, 1.0
+    moments, repaired = valid_moments(moments)           # positive semi-definite element matrices
     cube_rho = cube_mass / (volume * opts.scale**3) if opts.mass is not None else avg["rho"]
 
-    info = {"occupancy": opts.occupancy, "fill": opts.fill, "stiffness": opts.stiffness,
+    info = {"occupancy": opts.occupancy, "repaired_moments": int(repaired.sum()), "fill": opts.fill, "stiffness": opts.stiffness,
             "n_samples": int(len(surf)), "mass_samples": int(len(samples)),
             "sampler": "random" if opts.n_samples is not None else ("points" if cloud else "grid"),
             "spacing": spacing, "shell_thickness": thick if shells else 0.0, **counts,
