@@ -28,14 +28,39 @@ def test_picture_and_animation(tmp_path):
     assert not list(tmp_path.glob(".*tmp*"))                  # no temporary files left behind
 
 
-def test_missing_opengl_is_a_clear_error(monkeypatch):
-    monkeypatch.setattr(render, "_PROBE", "raise SystemExit('no EGL device')")
-    render.ensure_rendering.cache_clear()
+def test_missing_opengl_is_a_clear_error(monkeypatch, tmp_path):
+    from sc_fem.io import opengl
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.setattr(opengl, "_PROBE", "raise SystemExit('no EGL device')")
+    opengl.ensure_rendering.cache_clear()
     try:
         with pytest.raises(RenderError, match="apt-get install"):
-            render.ensure_rendering()
+            opengl.ensure_rendering()
+        assert not list(tmp_path.rglob("render-ok-*"))          # a failure is not remembered
     finally:
-        render.ensure_rendering.cache_clear()
+        opengl.ensure_rendering.cache_clear()
+
+
+def test_a_successful_check_is_remembered_on_disk(monkeypatch, tmp_path):
+    """The second process (here: after clearing the in-process cache) starts no child Python."""
+    from sc_fem.io import opengl
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.delenv("SC_FEM_NO_RENDER_CACHE", raising=False)
+    opengl.ensure_rendering.cache_clear()
+    try:
+        opengl.ensure_rendering()
+        assert len(list(tmp_path.rglob("render-ok-*"))) == 1
+        opengl.ensure_rendering.cache_clear()
+        monkeypatch.setattr(opengl.subprocess, "run", lambda *a, **k: pytest.fail("probed again"))
+        opengl.ensure_rendering()
+        monkeypatch.setenv("SC_FEM_NO_RENDER_CACHE", "1")             # the opt-out probes every time
+        opengl.ensure_rendering.cache_clear()
+        with pytest.raises(pytest.fail.Exception):
+            opengl.ensure_rendering()
+    finally:
+        opengl.ensure_rendering.cache_clear()
 
 
 def test_bad_animation_input(tmp_path):

@@ -1,19 +1,17 @@
 """Off-screen rendering with pyvista/VTK (EGL on headless machines).
 
-:func:`ensure_rendering` checks once per process, in a child process, that an OpenGL context
-can be made, so a broken graphics stack raises :class:`~sc_fem.errors.RenderError` with what to
+:func:`~sc_fem.io.opengl.ensure_rendering` checks, in a child process, that an OpenGL context can
+be made, so a broken graphics stack raises :class:`~sc_fem.errors.RenderError` with what to
 install instead of crashing this process. Images and videos are written atomically.
 """
 
 from __future__ import annotations
 
 import contextlib
-import functools
 import itertools
 import os
 import re
 import shutil
-import subprocess
 import sys
 import tempfile
 import warnings
@@ -23,52 +21,13 @@ import numpy as np
 
 from .._atomic import atomic_path
 from .._validate import as_float_array, positive_int
-from ..errors import InputError, RenderError
+from ..errors import InputError
 from ..lattice.cubes import CubeModel
 from ..modes.basis import ModalBasis
+from .opengl import ensure_rendering
 
 # VTK_HEXAHEDRON corner order expressed in sc_fem's HEX_CORNERS indices
 _VTK_HEX_ORDER = np.array([0, 3, 6, 2, 1, 5, 7, 4])
-
-_PROBE = (
-    "import pyvista as pv\n"
-    "p = pv.Plotter(off_screen=True, window_size=(32, 32))\n"
-    "p.add_mesh(pv.Cube())\n"
-    "img = p.screenshot(return_img=True)\n"
-    "p.close()\n"
-    "assert img.shape[0] == 32\n"
-)
-
-
-def _configure_env() -> None:
-    if not os.environ.get("DISPLAY"):
-        os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
-
-
-@functools.lru_cache(maxsize=1)
-def ensure_rendering() -> str:
-    """Make sure off-screen rendering works; returns the render window class name used.
-
-    Raises
-    ------
-    RenderError
-        No OpenGL context could be made (says what to install).
-    """
-    _configure_env()
-    try:
-        res = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True, timeout=120,
-                             env=dict(os.environ))
-    except (OSError, subprocess.TimeoutExpired) as exc:
-        raise RenderError(f"could not start the rendering check: {exc}") from None
-    if res.returncode != 0:
-        tail = (res.stderr or res.stdout).strip().splitlines()[-3:]
-        raise RenderError(
-            "off-screen rendering is not available: no OpenGL context could be made "
-            f"({' | '.join(tail)}). Install an EGL/OSMesa driver (Debian: apt-get install libegl1 "
-            "libgl1-mesa-dri, or libosmesa6 with VTK_DEFAULT_OPENGL_WINDOW=vtkOSOpenGLRenderWindow), "
-            "or run under a virtual display (xvfb-run).")
-    return os.environ.get("VTK_DEFAULT_OPENGL_WINDOW", "default")
-
 
 def pv():
     """The ``pyvista`` module, ready for off-screen rendering (checked by :func:`ensure_rendering`).
