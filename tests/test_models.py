@@ -46,7 +46,9 @@ def test_bridge_has_gaps_isolated_polygons_and_skinny_triangles():
     # polygons float 0.35-0.4 m above it: bodies of their own, loose (< 1 % of the mass), not kept
     vox = sc_fem.voxelize(m, resolution=32)
     assert vox.n_components == 1 and vox.info["bodies"] == 3 and vox.info["loose_bodies"] == 2
-    assert vox.info["welds_by_distance"] >= 16
+    # joins by distance (groups left by nesting, less the bodies); that each cable is welded to the
+    # deck by the default weld is tested pair by pair in test_bodies
+    assert vox.info["welds_by_distance"] >= 1
     # the seed's grid topology: at a coarse pitch the gaps close and it is one connected structure
     assert sc_fem.voxelize(m, resolution=32, keep="all", topology="grid").n_components == 1
 
