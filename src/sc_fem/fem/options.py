@@ -1,5 +1,6 @@
-"""Which eigensolver, and within what memory: the options of :func:`sc_fem.modal`'s eigensolve
-(:class:`EigenOptions`) and the automatic choice of method (:func:`choose_method`).
+"""Which solver, and within what memory: the options of :func:`sc_fem.modal`'s eigensolve
+(:class:`EigenOptions`) and the automatic choice of method (:func:`choose_method`), and the options
+of :func:`sc_fem.solve_static`'s linear solve (:class:`StaticOptions`, :func:`choose_static_solver`).
 
 ``method="auto"`` predicts both solvers' times from :data:`SPEED_MODEL` (calibrated by
 ``benchmarks/scale.py``) and their memory (:func:`factor_memory_estimate`,
@@ -144,3 +145,128 @@ def choose_method(n: int, nnz: int, k: int, max_memory: float | None = None) -> 
     why = "faster" if fits_si else (f"the factorization would need ~{need / 2**20:,.0f} MiB > budget "
                                     f"{budget / 2**20:,.0f} MiB")
     return "lobpcg", f"{times} ({why}); LOBPCG needs ~{need_l / 2**20:,.0f} MiB"
+
+
+STATIC_SOLVERS: tuple[str, ...] = ("auto", "direct", "cg-amg")
+"""Names accepted by :class:`StaticOptions` ``solver``."""
+
+CG_AMG_MIN_DOFS = 5_000
+"""``solver="auto"`` solves ``K u = f`` by CG + AMG from this many free DOFs on, by a sparse
+Cholesky factorization below. Measured end to end on this 2-core machine
+(``benchmarks/static_speed.py``, CHOLMOD on the system's reference BLAS, 2026-11-25): the
+cantilever 0.044 s direct vs 0.064 s CG + AMG at 3,000 DOFs, 0.14 vs 0.09 s at 5,184, 0.34 vs
+0.12 s at 8,820; the bunny 0.085 vs 0.073 s at 2,619, 0.28 vs 0.17 s at 5,217, 1.5 vs 0.33 s at
+14,325. Below the threshold both take well under a second, and the direct solve has no tolerance."""
+
+AUTO_CG_ITERATIONS = 80
+"""``solver="auto"`` gives CG this many iterations; a model that needs more (members one or two
+cubes thick, which the AMG preconditions poorly and a factorization fills little) is solved
+directly instead, when the factorization fits in memory. Measured at tol 1e-8: compact shapes
+(bunny, cantilever) 16-28 iterations, the chair 43-53 (CG + AMG 1.3 s vs direct 2.4 s at 35,661
+DOFs), the cable-stayed bridge 135 at 8,172 DOFs and 315 at 28,968 (4.2 s vs direct 1.0 s)."""
+
+
+@dataclass(frozen=True)
+class StaticOptions:
+    """How :func:`sc_fem.solve_static` solves ``K u = f``.
+
+    Parameters
+    ----------
+    solver : {"auto", "direct", "cg-amg"}
+        ``"direct"``: sparse Cholesky (:func:`sc_fem.fem.linsolve.factorize`); ``"cg-amg"``:
+        conjugate gradients preconditioned by a smoothed-aggregation AMG V-cycle
+        (:class:`sc_fem.fem.multigrid.StaticAMG`); ``"auto"`` (:func:`choose_static_solver`): CG +
+        AMG from :data:`CG_AMG_MIN_DOFS` free DOFs on for trilinear cubes, else direct, and direct
+        after all if CG has not converged within :data:`AUTO_CG_ITERATIONS` iterations and the
+        factorization fits in memory.
+    backend : {"auto", "cholmod", "cholespy", "splu"}
+        Factorization backend of the direct solve.
+    tol : float
+        CG stops at ``||K u - f|| <= tol ||f||``. The default 1e-8 gave displacements within
+        1e-9 (relative 2-norm) of the direct solve on the bunny, chair and cantilever, 5e-9 on the
+        bridge's one-cube cables (``benchmarks/static_speed.py``).
+    maxiter : int
+        Largest number of CG iterations; beyond it the solve fails (:class:`~sc_fem.SolverError`,
+        naming the residual reached), or with ``"auto"`` falls back to the direct solve.
+    max_memory : float, optional
+        Bytes a fallback factorization may use; default half the available memory.
+    """
+
+    solver: str = "auto"
+    backend: str = "auto"
+    tol: float = 1e-8
+    maxiter: int = 500
+    max_memory: float | None = None
+
+    def __post_init__(self) -> None:
+        from .._validate import positive_int, positive_scalar
+        from .linsolve import BACKENDS
+
+        if self.solver not in STATIC_SOLVERS:
+            raise InputError(f"static solver must be one of {list(STATIC_SOLVERS)}, got {self.solver!r}")
+        if self.backend not in ("auto", *BACKENDS):
+            raise InputError(f"backend must be one of {['auto', *BACKENDS]}, got {self.backend!r}")
+        tol = positive_scalar(self.tol, "tol")
+        if not tol < 1.0:
+            raise InputError(f"tol must be a relative residual below 1, got {tol!r}")
+        object.__setattr__(self, "tol", tol)
+        object.__setattr__(self, "maxiter", positive_int(self.maxiter, "maxiter"))
+        if self.max_memory is not None:
+            object.__setattr__(self, "max_memory", positive_scalar(self.max_memory, "max_memory"))
+
+    @classmethod
+    def coerce(cls, value: StaticOptions | str | None) -> StaticOptions:
+        """``None`` (defaults), a StaticOptions, or a solver name (``"cg-amg"``).
+
+        Parameters
+        ----------
+        value : StaticOptions, str or None
+            The options, a solver name (the ``solver`` field) or ``None`` for the defaults.
+
+        Returns
+        -------
+        StaticOptions
+            ``value`` itself when it is one, else new options.
+        """
+        if value is None:
+            return cls()
+        if isinstance(value, cls):
+            return value
+        if isinstance(value, str):
+            return cls(solver=value)
+        raise InputError(f"solver must be a StaticOptions or a solver name, got {type(value).__name__}")
+
+
+def choose_static_solver(n: int, nnz: int, solver: str = "auto", *, lattice: bool = True,
+                         max_memory: float | None = None) -> tuple[str, str]:
+    """``("direct" | "cg-amg", reason)`` for ``K u = f`` with ``n`` free DOFs and ``nnz`` nonzeros.
+
+    Parameters
+    ----------
+    n, nnz : int
+        Size and nonzeros of the reduced stiffness.
+    solver : {"auto", "direct", "cg-amg"}
+        A requested solver is returned as it is.
+    lattice : bool
+        Trilinear cubes (the AMG's lattice aggregates apply); ``"auto"`` keeps higher-order cubes
+        on the direct solve.
+    max_memory : float, optional
+        Budget in bytes (default half the available memory): a factorization estimated above it
+        is not chosen below :data:`CG_AMG_MIN_DOFS` either.
+
+    Returns
+    -------
+    solver : str
+    reason : str
+    """
+    if solver != "auto":
+        return solver, "requested"
+    if not lattice:
+        return "direct", "higher-order cubes: direct (the AMG is tuned for trilinear cubes)"
+    need, budget = factor_memory_estimate(n, nnz), memory_budget(max_memory)
+    if n >= CG_AMG_MIN_DOFS:
+        return "cg-amg", f"{n:,} DOFs >= {CG_AMG_MIN_DOFS:,}: CG + AMG"
+    if need > budget:
+        return "cg-amg", (f"the factorization would need ~{need / 2**20:,.0f} MiB > budget "
+                          f"{budget / 2**20:,.0f} MiB: CG + AMG")
+    return "direct", f"{n:,} DOFs < {CG_AMG_MIN_DOFS:,}: direct"
