@@ -26,6 +26,18 @@ automatic choice never starts a factorization that would not fit (it may pick LO
 for shells)."""
 
 
+def _coerce(cls, value, what: str):
+    """Options of type ``cls``: ``None`` (defaults), an instance, or a solver name (the ``solver``
+    field); anything else is an InputError naming the argument ``what``."""
+    if value is None:
+        return cls()
+    if isinstance(value, cls):
+        return value
+    if isinstance(value, str):
+        return cls(solver=value)
+    raise InputError(f"{what} must be a {cls.__name__} or a solver name, got {type(value).__name__}")
+
+
 @dataclass(frozen=True)
 class EigenOptions:
     """Which eigensolver, and within what memory: the options :func:`sc_fem.modal` passes on to
@@ -72,13 +84,7 @@ class EigenOptions:
         EigenOptions
             ``value`` itself when it is one, else new options.
         """
-        if value is None:
-            return cls()
-        if isinstance(value, cls):
-            return value
-        if isinstance(value, str):
-            return cls(solver=value)
-        raise InputError(f"eigen must be an EigenOptions or a solver name, got {type(value).__name__}")
+        return _coerce(cls, value, "eigen")
 
 
 def factor_memory_estimate(n: int, nnz: int) -> int:
@@ -228,13 +234,7 @@ class StaticOptions:
         StaticOptions
             ``value`` itself when it is one, else new options.
         """
-        if value is None:
-            return cls()
-        if isinstance(value, cls):
-            return value
-        if isinstance(value, str):
-            return cls(solver=value)
-        raise InputError(f"solver must be a StaticOptions or a solver name, got {type(value).__name__}")
+        return _coerce(cls, value, "solver")
 
 
 def choose_static_solver(n: int, nnz: int, solver: str = "auto", *, lattice: bool = True,
