@@ -1,14 +1,14 @@
 """Compiled ray-crossing count of :func:`sc_fem.geometry.inside.crossing_number` (numba, optional).
 
 The numpy path expands every (point, face over its bin) pair into arrays; this kernel visits the
-same pairs point by point in parallel, with the same arithmetic in the same order (the edge signs
+same pairs point by point, with the same arithmetic in the same order (the edge signs
 of :func:`sc_fem.geometry.inside._edge_signs`, the face's height from the same sub-areas), so both
 count the same crossings. Without numba (the optional extra ``sc_fem[fast]``) the numpy path runs.
 """
 
 from __future__ import annotations
 
-from .._jit import compiled, compiled_parallel, prange
+from .._jit import compiled, prange
 
 
 def _edge_sign_py(ax, ay, bx, by, px, py):  # pragma: no cover - compiled
@@ -62,5 +62,5 @@ def _crossings_py(q, tri, lo, hi, size, nb, start, bin_face, out):  # pragma: no
         out[i] = acc
 
 
-crossings = compiled_parallel(_crossings_py)
+crossings = compiled(_crossings_py)
 """The compiled :func:`_crossings_py` (None without numba)."""

@@ -1,13 +1,13 @@
 """Compiled surface integrals of :func:`sc_fem.lattice.moments.piece_integrals` (numba, optional).
 
 The numpy path builds (pieces, 16 points, 3 axes, 4 powers) arrays; this kernel integrates piece
-after piece in parallel with the same collapsed Gauss rule, so both agree to round-off. Without
+after piece with the same collapsed Gauss rule, so both agree to round-off. Without
 numba (the optional extra ``sc_fem[fast]``) the numpy path runs.
 """
 
 from __future__ import annotations
 
-from .._jit import compiled_parallel, prange
+from .._jit import compiled, prange
 
 
 def _piece_integrals_py(pieces, cells, origin, pitch, st, w, inner, column):  # pragma: no cover - compiled
@@ -45,5 +45,5 @@ def _piece_integrals_py(pieces, cells, origin, pitch, st, w, inner, column):  # 
             acc_col[m] *= az
 
 
-piece_integrals = compiled_parallel(_piece_integrals_py)
+piece_integrals = compiled(_piece_integrals_py)
 """The compiled :func:`_piece_integrals_py` (None without numba)."""
