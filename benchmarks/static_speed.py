@@ -9,7 +9,7 @@ relative 2-norm difference of its displacements from the direct ones; and, on th
 with default options and ``ml.solve(b, tol=TOL, accel="cg")``. A second table sweeps small models
 for the crossover that ``solver="auto"`` uses (:data:`sc_fem.fem.options.CG_AMG_MIN_DOFS`).
 
-Cases: the Stanford bunny (``/work/shared/meshes/bunny.obj``, y up, E = 10 MPa, the nodes of the
+Cases: the Stanford bunny (``bunny.obj`` of the shared meshes, ``_common.SHARED_MESHES``; y up, E = 10 MPa, the nodes of the
 lowest 2 % held) at resolution 32 and 64, and the built-in steel cantilever ``builtin:beam``
 (root face held) at resolution 160 (139k DOFs). ``--quick``: the bunny at 32, the beam at 80. The
 crossover sweep adds thin-membered built-ins (chair r64, cable-stayed bridge r48 and r96, held

@@ -411,3 +411,18 @@ WATERTIGHT = ("i_beam", "channel", "portal_frame", "plate", "two_plates", "table
 SOUPS = ("slatted_chair", "truss_bridge_mm", "toy_truck")
 #: Shapes with open (boundary) edges.
 OPEN = ("toy_truck", "open_sheet")
+
+
+def box_obj_with_normals(folder) -> tuple:
+    """An OBJ box (0.2 x 0.3 x 0.5) whose ``vn`` lines are corner normals, deliberately not the
+    faces' normals: the file's path and those normals (8, 3)."""
+    from pathlib import Path
+
+    box = trimesh.creation.box(extents=(0.2, 0.3, 0.5))
+    v, f = np.asarray(box.vertices), np.asarray(box.faces)
+    vn = v / np.linalg.norm(v, axis=1, keepdims=True)
+    lines = [f"v {a} {b} {c}" for a, b, c in v] + [f"vn {a} {b} {c}" for a, b, c in vn]
+    lines += [f"f {a + 1}//{a + 1} {b + 1}//{b + 1} {c + 1}//{c + 1}" for a, b, c in f]
+    obj = Path(folder) / "box.obj"
+    obj.write_text("\n".join(lines) + "\n")
+    return obj, vn

@@ -204,15 +204,9 @@ def test_mesh_must_be_the_mode_files_source(spot, shared_meshes):
 def test_file_normals_are_kept(tmp_path):
     """An OBJ with ``vn`` lines: those normals are the rest NORMAL (turned with the model), not
     recomputed ones (here deliberately different from the faces' normals)."""
-    import trimesh
+    import shapes
 
-    box = trimesh.creation.box(extents=(0.2, 0.3, 0.5))
-    v, f = np.asarray(box.vertices), np.asarray(box.faces)
-    vn = v / np.linalg.norm(v, axis=1, keepdims=True)                          # corner normals, not face normals
-    lines = [f"v {a} {b} {c}" for a, b, c in v] + [f"vn {a} {b} {c}" for a, b, c in vn]
-    lines += [f"f {a + 1}//{a + 1} {b + 1}//{b + 1} {c + 1}//{c + 1}" for a, b, c in f]
-    obj = tmp_path / "box.obj"
-    obj.write_text("\n".join(lines) + "\n")
+    obj, vn = shapes.box_obj_with_normals(tmp_path)                            # corner normals, not face normals
     basis = sc_fem.modal(str(obj), resolution=4, n_modes=2)
     doc = sc_fem.io.gltf.gltf_document(basis, mesh=obj)
     R = np.asarray(doc.meshes[0].extras["sc_fem"]["axes"]["model_to_gltf"])

@@ -26,6 +26,8 @@ from sc_fem.io.gltf import mode_scales
 pxr = pytest.importorskip("pxr", reason="usd-core (module pxr) is not installed: pip install 'sc_fem[usd]'")
 from pxr import Gf, Usd, UsdGeom, UsdSkel  # noqa: E402
 
+from sc_fem.io import usd  # noqa: E402  (not a lazy name of sc_fem.io: imported here)
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -201,24 +203,18 @@ def test_source_uvs_with_mesh_and_smooth_seams(tmp_path, shared_meshes):
     first[group] = n
     twins = np.bincount(group)[group] > 1
     assert twins.sum() > 500 and (np.abs(n - first[group]).max(axis=1) < 1e-6)[twins].mean() > 0.97
-    bare = sc_fem.io.usd.usd_stage(npz)                                    # without --mesh: no UVs
+    bare = usd.usd_stage(npz)                                    # without --mesh: no UVs
     assert bare.GetPrimAtPath("/Model/Mesh").IsValid()
     assert not bare.GetPrimAtPath("/Model/Mesh").GetAttribute("primvars:st").IsValid()
 
 
 def test_file_normals_are_kept(tmp_path):
     """An OBJ with ``vn`` lines: those are the rest ``normals`` (not recomputed ones)."""
-    import trimesh
+    import shapes
 
-    box = trimesh.creation.box(extents=(0.2, 0.3, 0.5))
-    v, f = np.asarray(box.vertices), np.asarray(box.faces)
-    vn = v / np.linalg.norm(v, axis=1, keepdims=True)                          # corner normals, not face normals
-    lines = [f"v {a} {b} {c}" for a, b, c in v] + [f"vn {a} {b} {c}" for a, b, c in vn]
-    lines += [f"f {a + 1}//{a + 1} {b + 1}//{b + 1} {c + 1}//{c + 1}" for a, b, c in f]
-    obj = tmp_path / "box.obj"
-    obj.write_text("\n".join(lines) + "\n")
+    obj, vn = shapes.box_obj_with_normals(tmp_path)                            # corner normals, not face normals
     basis = sc_fem.modal(str(obj), resolution=4, n_modes=2)
-    stage = sc_fem.io.usd.usd_stage(basis, mesh=obj)
+    stage = usd.usd_stage(basis, mesh=obj)
     np.testing.assert_allclose(np.array(_mesh(stage).GetNormalsAttr().Get()), vn, atol=1e-6)
 
 
@@ -243,7 +239,7 @@ def test_animation_is_time_sampled_points_at_its_frame_rate(run, tmp_path):
     assert min(np.array(points.Get(float(i)))[:, 2].min() for i in range(a.n_frames)) < -5e-5   # it sags along -Z
     assert len(mesh.GetFaceVertexCountsAttr().Get()) == len(a.faces)
     with pytest.raises(InputError, match="mode files"):
-        sc_fem.io.usd.export_usd(a, tmp_path / "x.usda", mode=0)
+        usd.export_usd(a, tmp_path / "x.usda", mode=0)
 
 
 # ------------------------------------------------------------------------------------ errors
