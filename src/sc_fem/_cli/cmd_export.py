@@ -3,34 +3,31 @@ HTML page that plays the modes in real time)."""
 
 from __future__ import annotations
 
-from ..errors import InputError
 from ..io.export import EXPORT_FORMATS
-from .common import add_quiet, add_up_arg, command, finish
+from .common import add_amplitude_arg, add_impulse_arg, add_quiet, add_up_arg, command, finish, impulse_arg
 
 
 def register(sub) -> None:
     p = command(sub, "export", run_export, outputs=tuple(EXPORT_FORMATS),
                 help="write modes or an animation as glTF 2.0 (.glb/.gltf), OpenUSD (.usd/.usda/.usdc) or .vtu",
-                description="glTF 2.0: +Y up (the model's --up axis turned onto it), metres, a dielectric material, "
-                            "normals; two morph targets per mode (+mode, -mode: every weight in [0, 1]; weight 1 = "
-                            "--amplitude of the model's size; scales, frequencies, damping in meshes[0].extras), "
-                            "a baked playback (--impulse or --mode) as a weights animation, an animation (sc-fem "
-                            "simulate .npz) as one morph target per frame. OpenUSD (pip install 'sc_fem[usd]'): "
-                            "metres, upAxis from --up, one UsdSkel blend shape per mode (frequency, damping, scale as "
-                            "scfem: attributes), a baked playback as weight time samples at --fps, an animation as "
-                            "time-sampled points at its frame rate. A mode file stores no UVs: --mesh keeps them.")
+                description="glTF 2.0: +Y up (--up turned onto it), metres, a dielectric material, normals; two morph "
+                            "targets per mode (+mode, -mode: weights in [0, 1]; scales, frequencies, damping in "
+                            "meshes[0].extras), a baked playback (--impulse, --mode) as a weights animation, an "
+                            "animation (sc-fem simulate .npz) as one morph target per frame (at most 256). OpenUSD "
+                            "(pip install 'sc_fem[usd]'): metres, upAxis from --up, one UsdSkel blend shape per mode, "
+                            "a playback as weight time samples, an animation as time-sampled points.")
     p.add_argument("source", metavar="FILE", help="mode file or animation file (.npz)")
     p.add_argument("-o", "--output", required=True, help="output .glb (or .gltf); .usd/.usda/.usdc: OpenUSD (usdview, "
                    "Blender, Houdini); .vtu: the mode shapes for ParaView (one point array per mode)")
-    p.add_argument("--amplitude", type=float, default=0.05,
-                   help="largest displacement of a mode at weight 1, fraction of the bounding-box diagonal (0.05)")
+    add_amplitude_arg(p, "of a mode at weight 1 (--mode: at its release)")
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--impulse", type=float, nargs=4, default=None, metavar=("VERTEX", "JX", "JY", "JZ"),
-                   help="bake the exact response to an impulse (N s) on a source vertex")
+    add_impulse_arg(g, "bake the exact response to an impulse (N s) on a source vertex")
     g.add_argument("--mode", type=int, default=None, help="bake this mode released from weight 1")
-    p.add_argument("--duration", type=float, default=2.0, help="seconds of baked playback (2)")
-    p.add_argument("--fps", type=float, default=30.0,
-                   help="samples per second of the baked playback (30); moving modes above fps/2 alias (a warning)")
+    p.add_argument("--duration", type=float, default=None,
+                   help="seconds: of a baked playback (default 2), of an animation from its first frame (default all)")
+    p.add_argument("--fps", type=float, default=None,
+                   help="frames per second: of a baked playback (default 30, exact; moving modes above fps/2 alias: a "
+                        "warning), of an animation (default its own; another resamples it, linearly in time)")
     add_up_arg(p, uses="glTF turns it onto +Y (the up axis of glTF, three.js, Blender); USD's upAxis (x: onto +Y)")
     p.add_argument("--mesh", metavar="MESH", default=None, help="the source mesh the file was computed from (same "
                    "vertices): its UVs (glTF TEXCOORD_0, USD primvars:st) and its file normals, if any, are kept")
@@ -43,7 +40,7 @@ def register(sub) -> None:
                             "frequency table and the time scale. Open it in any browser.")
     v.add_argument("modes", metavar="MODES", help="mode file (.npz) from precompute-modes")
     v.add_argument("-o", "--output", required=True, help="output .html")
-    v.add_argument("--amplitude", type=float, default=0.05, help="weight 1 as a fraction of the model's size (0.05)")
+    add_amplitude_arg(v, "of a mode at weight 1 (a slider's end)")
     add_up_arg(v)
     add_quiet(v)
 
@@ -51,12 +48,9 @@ def register(sub) -> None:
 def run_export(args) -> int:
     from ..io.export import export_to_file
 
-    if args.impulse is not None and not float(args.impulse[0]).is_integer():
-        raise InputError(f"--impulse VERTEX must be an integer vertex index, got {args.impulse[0]:g}")
-    impulse = None if args.impulse is None else (int(args.impulse[0]), args.impulse[1:])
-    return finish(args, export_to_file(args.source, args.output, amplitude=args.amplitude, impulse=impulse,
-                                       mode=args.mode, duration=args.duration, fps=args.fps, up=args.up,
-                                       mesh=args.mesh))
+    return finish(args, export_to_file(args.source, args.output, amplitude=args.amplitude,
+                                       impulse=impulse_arg(args.impulse), mode=args.mode, duration=args.duration,
+                                       fps=args.fps, up=args.up, mesh=args.mesh))
 
 
 def run_view(args) -> int:

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 from ..errors import InputError
-from .common import (add_element_arg, add_fix_args, add_grid_args, add_material_args, add_mesh_arg, add_quiet,
-                     add_up_arg, command, finish, fix_options, voxel_options)
+from .common import (add_amplitude_arg, add_element_arg, add_fix_args, add_grid_args, add_impulse_arg,
+                     add_material_args, add_mesh_arg, add_quiet, add_up_arg, command, finish, fix_options,
+                     impulse_arg, voxel_options)
 
 
 def register(sub) -> None:
@@ -18,8 +19,7 @@ def register(sub) -> None:
     add_mesh_arg(p, many=True)
     p.add_argument("-o", "--output", required=True, help="mode file (.npz) for one mesh, or a folder for several")
     add_grid_args(p, auto=True)
-    p.add_argument("--tolerance", type=float, default=None,
-                   help="relative frequency agreement for --resolution auto (default 0.05)")
+    p.add_argument("--tolerance", type=float, default=None, help="relative frequency agreement of -r auto (0.05)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--modes", "-k", type=int, default=None, help="number of elastic modes (default 10)")
     g.add_argument("--max-frequency", type=float, default=None, metavar="HZ",
@@ -51,13 +51,11 @@ def register(sub) -> None:
                             "advanced by the exact solution of each damped modal oscillator. Writes "
                             ".mp4, .gif or a folder of PNG frames; without -o opens a window when a display exists.")
     q.add_argument("modes", metavar="MODES", help="mode file (.npz) from precompute-modes")
-    q.add_argument("--impulse", nargs=4, default=None, metavar=("VERTEX", "FX", "FY", "FZ"),
-                   help="impulse (N s) on source vertex VERTEX")
+    add_impulse_arg(q, "an impulse (N s) on a source vertex at t = 0")
     q.add_argument("--mode", type=int, default=None, help="displace this mode (default 0 when no --impulse)")
-    q.add_argument("--amplitude", type=float, default=None,
-                   help="largest vertex displacement of --mode, model units (default 5%% of the diagonal)")
+    add_amplitude_arg(q, "of --mode at t = 0 (as export --mode releases it)")
     q.add_argument("--duration", type=float, default=2.0, help="seconds to play (default 2)")
-    q.add_argument("--fps", type=float, default=30.0, help="frames per second (default 30)")
+    q.add_argument("--fps", type=float, default=30.0, help="frames per second (default 30); modes above fps/2 alias")
     q.add_argument("--exaggerate", type=float, default=1.0, help="multiply displacements for display (default 1)")
     q.add_argument("-o", "--output", default=None, help="out.mp4, out.gif or a folder for PNG frames")
     add_up_arg(q)
@@ -100,14 +98,9 @@ def run_precompute(args) -> int:
 def run_play(args) -> int:
     from ..io.playback import play_modes
 
-    try:
-        impulse = None if args.impulse is None else (int(args.impulse[0]), [float(x) for x in args.impulse[1:]])
-    except ValueError:
-        raise InputError(f"--impulse needs VERTEX FX FY FZ (an integer and three numbers), "
-                         f"got {' '.join(args.impulse)}") from None
-    return finish(args, play_modes(args.modes, args.output, impulse=impulse, mode=args.mode, amplitude=args.amplitude,
-                                   duration=args.duration, fps=args.fps, exaggerate=args.exaggerate, up=args.up,
-                                   progress=not args.quiet))
+    return finish(args, play_modes(args.modes, args.output, impulse=impulse_arg(args.impulse), mode=args.mode,
+                                   amplitude=args.amplitude, duration=args.duration, fps=args.fps,
+                                   exaggerate=args.exaggerate, up=args.up, progress=not args.quiet))
 
 
 def run_sheet(args) -> int:

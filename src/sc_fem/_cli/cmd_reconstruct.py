@@ -1,22 +1,11 @@
-"""``sc-fem reconstruct``: PDE-based dynamic reconstruction of a vertex animation (Fang et al. 2024).
+"""sc-fem reconstruct: PDE-based dynamic reconstruction of a vertex animation (Fang et al. 2024).
 
-Fits the paper's Eq. 17 model and the static B-spline baseline at ``--fit-frames``, evaluates
-both at every frame between the first and the last fitted frame, and writes the reconstructed
-curves (and mesh vertices) to an ``.npz`` plus an optional Markdown report (E_A / E_M per frame,
-timings, design-variable counts).
-
-Curves: if the animation ``.npz`` holds a ``curves`` array (T, C, P, 3) it is used; otherwise
-curves are extracted from the mesh (:func:`sc_fem.reconstruct.extract_curves`: ``--curves``
-lines of ``--points`` vertices along the rest principal axis), and the mesh is rebuilt from the
-reconstructed curves with an inverse-distance map (:func:`sc_fem.reconstruct.curve_mesh_map`).
-The job is :func:`sc_fem.reconstruct.pipeline.reconstruct_animation`; the file is read back with
-:func:`sc_fem.io.reconstruction.load_reconstruction`.
-
-Exit status: 0 when the PDE fit is acceptable; 1 when it failed -- an error that is not finite,
-a mean E_A above 0.02 or a max E_M above 0.2 (fractions of the curves' diameter), or a mean E_A
-at the fitted frames worse than the B-spline baseline's (and above 0.001). The .npz and the
-report are still written (they show where the fit fails) and one "error:" line gives the
-reasons; 2 for bad input.
+Fits the paper's Eq. 17 model and the static B-spline baseline at --fit-frames, evaluates both at
+every frame from the first to the last fitted one, and writes the curves (and mesh vertices) to an
+.npz, plus a Markdown --report (E_A / E_M per frame, timings, counts). Exit status: 0 when the PDE
+fit is acceptable; 1 when it failed (an error not finite, a mean E_A above 0.02 or a max E_M above
+0.2 of the curves' diameter, or a mean E_A at the fitted frames above 0.001 and worse than the
+B-spline's: the files are still written, an "error:" line says why); 2 for bad input.
 """
 
 from __future__ import annotations

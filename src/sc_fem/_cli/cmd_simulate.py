@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from .._validate import positive_scalar
 from ..errors import InputError
-from .common import (add_element_arg, add_fix_args, add_grid_args, add_material_args, add_mesh_arg, add_quiet,
-                     add_up_arg, command, finish, fix_options, voxel_options)
+from .common import (add_element_arg, add_fix_args, add_grid_args, add_impulse_arg, add_material_args, add_mesh_arg,
+                     add_quiet, add_up_arg, command, finish, fix_options, impulse_arg, voxel_options)
 
 
 def register(sub) -> None:
@@ -56,8 +56,7 @@ def register(sub) -> None:
                    help="static sphere obstacle (model units)")
     p.add_argument("--box", type=float, nargs=6, default=None, metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"),
                    help="static axis-aligned box obstacle (model units)")
-    p.add_argument("--impulse", type=float, nargs=4, action="append", default=[], metavar=("VERTEX", "JX", "JY", "JZ"),
-                   help="impulse in N s on a source vertex at t = 0 (repeatable)")
+    add_impulse_arg(p, "an impulse (N s) on a source vertex at t = 0 (repeatable)", many=True)
     p.add_argument("--velocity", type=float, nargs=3, default=None, metavar=("VX", "VY", "VZ"),
                    help="initial velocity of the whole model, m/s (a thrown model)")
     p.add_argument("--gust", type=float, nargs=4, default=None, metavar=("FX", "FY", "FZ", "SECONDS"),
@@ -88,6 +87,7 @@ def run(args) -> int:
     return finish(args, simulate_to_file(
         args.mesh, args.output, duration=args.duration, fps=args.fps, voxel=voxel_options(args), **fix_options(args),
         exaggerate=args.magnify, verbose=not args.quiet, progress=not (args.quiet or args.no_progress),
-        impulses=args.impulse, newmark=NewmarkOptions(beta=args.beta, gamma=args.gamma, alpha=args.hht_alpha),
+        impulses=[(v, *j) for v, j in map(impulse_arg, args.impulse)],
+        newmark=NewmarkOptions(beta=args.beta, gamma=args.gamma, alpha=args.hht_alpha),
         xpbd=XPBDOptions(substeps=args.substeps, iterations=args.iterations, constraints=args.constraints,
                          damping=args.xpbd_damping), **{k: getattr(args, k) for k in same}))

@@ -4,7 +4,10 @@ spells them alike; :func:`command` declares a command and :func:`finish` prints 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
+
+from ..errors import InputError
 
 
 def command(sub, name: str, run, *, outputs: tuple = (), folder: bool = False, **kw) -> argparse.ArgumentParser:
@@ -44,8 +47,7 @@ def add_grid_args(p: argparse.ArgumentParser, *, auto: bool = False) -> None:
                    help="cubes along the longest bounding-box axis (default 32)"
                         + ("; 'auto' picks the coarsest grid whose frequencies have converged" if auto else ""))
     g.add_argument("--pitch", type=float, default=None, help="cube edge in model units")
-    p.add_argument("--scale", type=float, default=1.0,
-                   help="metres per model unit (a model in millimetres: 0.001); default 1")
+    p.add_argument("--scale", type=float, default=1.0, help="metres per model unit (a model in mm: 0.001); default 1")
     p.add_argument("--fill", choices=("auto", "solid", "surface"), default="auto",
                    help="auto (default): solid where the surface encloses volume, a shell of "
                         "--shell-thickness where it does not; solid: every part solid; surface: every part a shell")
@@ -114,6 +116,27 @@ def add_up_arg(p: argparse.ArgumentParser, *, uses: str = "pictures draw it upwa
     what this command does with it (help text)."""
     p.add_argument("--up", choices=("x", "y", "z"), default="z",
                    help=f"the model's up axis (default z; many OBJ/glTF models are y-up): {uses}")
+
+
+def add_amplitude_arg(p: argparse.ArgumentParser, what: str) -> None:
+    """``--amplitude``: one meaning on play, export and view (``what``: of which motion)."""
+    p.add_argument("--amplitude", type=float, default=None, metavar="FRACTION",
+                   help=f"largest vertex displacement {what}, fraction of the bounding-box diagonal (default 0.05)")
+
+
+def add_impulse_arg(p, help: str, *, many: bool = False) -> None:
+    """``--impulse VERTEX JX JY JZ`` (N s), parsed alike on every command (``many``: repeatable)."""
+    p.add_argument("--impulse", type=float, nargs=4, metavar=("VERTEX", "JX", "JY", "JZ"), help=help,
+                   action="append" if many else "store", default=[] if many else None)
+
+
+def impulse_arg(values) -> tuple[int, tuple] | None:
+    """``(vertex, (Jx, Jy, Jz))`` of one ``--impulse`` (None: None): VERTEX a whole number >= 0, J finite."""
+    if values is not None and not (float(values[0]).is_integer() and values[0] >= 0
+                                   and all(map(math.isfinite, values))):
+        raise InputError("--impulse needs VERTEX JX JY JZ: a vertex index (an integer >= 0) and an impulse in N s, "
+                         f"got {' '.join(f'{x:g}' for x in values)}")
+    return None if values is None else (int(values[0]), tuple(values[1:]))
 
 
 def add_element_arg(p: argparse.ArgumentParser, *, higher_order: bool = False) -> None:

@@ -1,8 +1,6 @@
-"""``sc-fem`` entry point: ``main(argv=None) -> int``, testable in-process.
-
-:data:`COMMANDS` lists the command modules; each ``register(subparsers)`` adds its command(s) with
-:func:`.common.command`: a ``run(args) -> int`` (parse, call one library function, print its
-summary) and the outputs it writes, which are checked here before any work."""
+"""``sc-fem`` entry point: ``main(argv=None) -> int``, testable in-process. :data:`COMMANDS` lists the command
+modules; each ``register(subparsers)`` adds its command(s) with :func:`.common.command`: a ``run(args) -> int``
+(parse, call one library function, print its summary) and its outputs, checked here before any work."""
 
 from __future__ import annotations
 

@@ -211,7 +211,7 @@ def run_simulation(scene, *, duration: float, dt: float | None = None, method: s
         # the loads' work is accounted; damping, friction and contact only take energy out
         warnings.append(f"the run created energy: up to {100 * rec.energy_gain:.3g} % of its energy scale beyond the "
                         f"work of the loads: it is not converged ({integ.convergence_hint})")
-    info = {"method": method, "dt": dt, "duration": duration, "n_steps": n_steps, "source": scene.source,
+    info = {"method": method, "dt": dt, "fps": fps, "duration": duration, "n_steps": n_steps, "source": scene.source,
             "element": element, "material": model.info.get("material", ""), "gravity": bool(gravity),
             "ground": ground, "up": up, "sphere": None if sphere is None else [float(x) for x in sphere],
             "box": None if box is None else [float(x) for x in box], "rayleigh": [float(x) for x in rayleigh], "hht_alpha": newmark.alpha,

@@ -7,6 +7,7 @@ _NAMES = {
     "save_modes": ".modes", "load_modes": ".modes",
     "save_model": ".model", "load_model": ".model",
     "Animation": ".animation", "save_animation": ".animation", "load_animation": ".animation",
+    "resample_animation": ".animation",
     "save_reconstruction": ".reconstruction", "load_reconstruction": ".reconstruction",
     "run_batch": ".batch", "BatchResult": ".batch", "modes_sheet": ".render",
     "voxelize_to_file": ".voxelize", "precompute_modes": ".precompute", "play_modes": ".playback",

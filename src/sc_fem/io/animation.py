@@ -15,7 +15,8 @@ displacements      (T, n, 3) f32    vertex positions minus rest positions, model
                                     (float32 relative to the motion, not to the model's
                                     size or its offset from the origin)
 energy             (T,) float64     kinetic + elastic + gravity potential, J (NaN if unknown)
-meta_json          () str           JSON dict: method, dt, material, source, ...
+meta_json          () str           JSON dict: method, dt, fps (the frame rate stored),
+                                    material, source, ...
 curves (optional)  (T, C, P, 3) f8  curves on the surface (e.g. the XPBD rope's 24 x 832), model units
 lattice_*          (optional)       the cube lattice of the run, written by ``sc-fem simulate``:
                                     ``lattice_node_index`` (q, 3) int (grid indices of the nodes),
@@ -87,6 +88,18 @@ class Animation:
     def n_frames(self) -> int:
         """Number of frames ``T``."""
         return len(self.times)
+
+    @property
+    def frame_rate(self) -> float | None:
+        """Frames per second stored: ``meta["fps"]`` (what ``sc-fem simulate`` records) when it agrees
+        with the frame times, else ``(T - 1) / (t_{T-1} - t_0)`` to 9 significant digits; None for
+        a single frame."""
+        if self.n_frames < 2:
+            return None
+        rate = float(f"{(self.n_frames - 1) / (self.times[-1] - self.times[0]):.9g}")
+        said = self.meta.get("fps") if isinstance(self.meta, dict) else None
+        ok = isinstance(said, (int, float)) and not isinstance(said, bool) and abs(said - rate) <= 1e-6 * rate
+        return float(said) if ok else rate
 
 
 @dataclass(frozen=True, eq=False)
@@ -277,6 +290,65 @@ def load_animation(path: str | Path) -> Animation:
     lattice = _read_lattice(path, data, len(rest), len(times))
     return Animation(faces=faces, rest_vertices=rest, times=times, positions=positions,
                      energy=energy, meta=meta, curves=curves, lattice=lattice)
+
+
+def _lerp(frames: np.ndarray, i0: np.ndarray, i1: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """``frames[i0] + a (frames[i1] - frames[i0])`` for frames (T, ...) and indices/weights (S,):
+    (S, ...); exactly ``frames[i0]`` where ``a == 0``."""
+    lo = frames[i0]
+    return lo + a.reshape((-1,) + (1,) * (frames.ndim - 1)) * (frames[i1] - lo)
+
+
+def resample_animation(anim: Animation, fps: float, *, duration: float | None = None) -> Animation:
+    """The animation at ``fps`` frames per second: vertex positions (and curves, lattice motion)
+    interpolated linearly in time between the stored frames.
+
+    Parameters
+    ----------
+    anim : Animation
+        T stored frames at times ``t_0 < ... < t_{T-1}`` (s), not necessarily uniform.
+    fps : float
+        Frames per second of the result.
+    duration : float, optional
+        Seconds from ``t_0`` (default the whole animation, ``t_{T-1} - t_0``); at most that.
+
+    Returns
+    -------
+    Animation
+        ``S = floor(duration fps) + 1`` frames at ``t_0 + arange(S) / fps`` (s): positions (S, n, 3)
+        in model units, energy (S,) in J (interpolated, a record only), curves (S, C, P, 3) and the
+        lattice track when ``anim`` has them. A time that falls on a stored frame (within 1e-6 of
+        a frame step) gives that frame exactly: when ``fps`` divides the stored rate, every k-th
+        frame. ``meta`` adds ``fps``, ``resampled_from_fps`` and ``resampling``.
+
+    Raises
+    ------
+    InputError
+        ``fps`` or ``duration`` not positive and finite, or ``duration`` beyond the animation's.
+    """
+    from dataclasses import replace
+
+    fps = positive_scalar(fps, "fps")
+    t = np.asarray(anim.times, dtype=float)
+    whole = float(t[-1] - t[0])
+    duration = whole if duration is None else positive_scalar(duration, "duration")
+    if duration > whole * (1 + 1e-9) + 1e-12:
+        raise InputError(f"duration {duration:g} s is longer than the animation ({whole:g} s, {anim.n_frames} frames)")
+    times = t[0] + np.arange(int(np.floor(duration * fps * (1 + 1e-9))) + 1) / fps
+    u = np.interp(times, t, np.arange(len(t), dtype=float))      # fractional stored-frame index, (S,)
+    near = np.rint(u)
+    u = np.where(np.abs(u - near) < 1e-6, near, u)               # on a stored frame: that frame, exactly
+    i0 = np.minimum(np.floor(u).astype(np.int64), len(t) - 1)
+    i1, a = np.minimum(i0 + 1, len(t) - 1), u - i0
+    lattice = anim.lattice
+    if lattice is not None:
+        lattice = replace(lattice, displacements=_lerp(lattice.displacements, i0, i1, a))
+    meta = {**(anim.meta if isinstance(anim.meta, dict) else {}), "fps": fps, "resampled_from_fps": anim.frame_rate,
+            "resampling": "stored frames, exact" if np.all(a == 0) else "linear interpolation in time"}
+    return Animation(faces=anim.faces, rest_vertices=anim.rest_vertices, times=times,
+                     positions=_lerp(np.asarray(anim.positions, dtype=float), i0, i1, a),
+                     energy=np.interp(times, t, np.asarray(anim.energy, dtype=float)), meta=meta,
+                     curves=None if anim.curves is None else _lerp(anim.curves, i0, i1, a), lattice=lattice)
 
 
 ANIMATION_OUTPUTS = (".npz", ".xdmf", ".mp4", ".gif")

@@ -5,6 +5,7 @@ Blender and the browser (:func:`sc_fem.io.gltf.export_gltf`), OpenUSD for VFX to
 
 from __future__ import annotations
 
+import math
 import warnings
 from pathlib import Path
 from typing import Any, Sequence
@@ -18,9 +19,35 @@ EXPORT_FORMATS = {".glb": "gltf", ".gltf": "gltf", ".usd": "usd", ".usda": "usd"
 ``vtu`` (:func:`sc_fem.io.modes.save_modes_vtu`, mode files only)."""
 
 
-def export_to_file(source: Any, output: str | Path, *, amplitude: float = 0.05,
+def _sig_floor(x: float, digits: int = 3) -> float:
+    """``x`` > 0 rounded down to ``digits`` significant digits (a value people can type)."""
+    step = 10.0 ** (math.floor(math.log10(x)) - digits + 1)
+    return float(f"{math.floor(x / step * (1 + 1e-12)) * step:.{digits}g}")
+
+
+def _animation_at(anim: Any, fps: float | None, duration: float | None, max_frames: int | None) -> Any:
+    """``anim`` at ``fps`` (default its stored rate) over ``duration`` seconds (default all of it),
+    :func:`sc_fem.io.animation.resample_animation` when that differs from what is stored; at most
+    ``max_frames`` frames, or an InputError saying which ``--fps`` / ``--duration`` fit."""
+    from .animation import resample_animation
+
+    stored = anim.frame_rate
+    same = fps is None or stored is None or abs(float(fps) - stored) <= 1e-9 * stored
+    if not (same and duration is None):
+        anim = resample_animation(anim, stored if fps is None else fps, duration=duration)
+    if max_frames is not None and anim.n_frames > max_frames:
+        rate, secs = anim.frame_rate, float(anim.times[-1] - anim.times[0])
+        raise InputError(f"the animation would be {anim.n_frames} frames ({secs:g} s at {rate:g} fps); glTF takes at "
+                         f"most {max_frames} (one morph target per frame; USD takes any number): export it with --fps "
+                         f"{_sig_floor((max_frames - 1) / secs)} or lower, or --duration "
+                         f"{_sig_floor((max_frames - 1) / rate)} or shorter")
+    return anim
+
+
+def export_to_file(source: Any, output: str | Path, *, amplitude: float | None = None,
                    impulse: tuple[int, Sequence[float]] | None = None, mode: int | None = None,
-                   duration: float = 2.0, fps: float = 30.0, up: str = "z", mesh: Any = None) -> JobResult:
+                   duration: float | None = None, fps: float | None = None, up: str = "z",
+                   mesh: Any = None) -> JobResult:
     """Write a mode file or a vertex animation as glTF 2.0 (``.glb``/``.gltf``), OpenUSD
     (``.usd``/``.usda``/``.usdc``), or a mode file's shapes as ``.vtu`` (one point array per mode).
 
@@ -32,16 +59,22 @@ def export_to_file(source: Any, output: str | Path, *, amplitude: float = 0.05,
     output : str or Path
         ``.glb``, ``.gltf``, ``.usd``, ``.usda``, ``.usdc`` or ``.vtu`` (a mode file only, without
         a baked playback); see :data:`EXPORT_FORMATS`.
-    amplitude : float
-        Largest displacement of a mode at weight 1, fraction of the bounding-box diagonal.
+    amplitude : float, optional
+        Largest vertex displacement of a mode at weight 1 (and of ``mode`` when released), as a
+        fraction of the bounding-box diagonal (default 0.05, as ``sc-fem play`` and ``view``).
     impulse : (int, (float, float, float)), optional
         Bake the exact response to an impulse (N s) on a source vertex.
     mode : int, optional
         Bake this mode released from weight 1.
-    duration : float
-        Seconds of baked playback.
-    fps : float
-        Samples per second of the baked playback.
+    duration : float, optional
+        Seconds: of baked playback (default 2), or of an animation from its first frame (default
+        all of it).
+    fps : float, optional
+        Frames per second: of a baked playback (default 30; sampled exactly), or of an animation
+        (default its stored rate; another rate resamples it with
+        :func:`~sc_fem.io.animation.resample_animation`: linear interpolation in time, the stored
+        frames themselves when ``fps`` divides the stored rate). glTF takes at most
+        :data:`sc_fem.io.gltf.MAX_ANIMATION_TARGETS` frames.
     up : {"x", "y", "z"}
         The model's up axis (turned onto glTF's +Y; USD's ``upAxis``).
     mesh : path or mesh, optional
@@ -50,21 +83,24 @@ def export_to_file(source: Any, output: str | Path, *, amplitude: float = 0.05,
     Returns
     -------
     JobResult
-        ``result`` the mode basis or animation exported; the summary names the file and its size.
+        ``result`` the mode basis or the animation exported (resampled when it was); the summary
+        names the file, its size and, for an animation, its frames and rate.
 
     Raises
     ------
     InputError
-        An output suffix not in :data:`EXPORT_FORMATS`, or options the format does not take.
+        An output suffix not in :data:`EXPORT_FORMATS`, options the format does not take, or an
+        animation longer than glTF takes (the message names the ``--fps`` / ``--duration`` that fit).
     ScFemError
         USD output without ``usd-core`` installed (the message says what to install).
 
     Warns
     -----
     ScFemWarning
-        A baked playback moves modes above ``fps / 2`` (they alias).
+        A baked playback moves modes above ``fps / 2`` (they alias; the rule and words of ``sc-fem play``).
     """
-    from .gltf import _load, alias_warning, moving_modes
+    from .animation import Animation
+    from .gltf import DEFAULT_AMPLITUDE, MAX_ANIMATION_TARGETS, _load, alias_warning, moving_modes
 
     writer = EXPORT_FORMATS.get(Path(output).suffix.lower())
     if writer is None:
@@ -74,6 +110,7 @@ def export_to_file(source: Any, output: str | Path, *, amplitude: float = 0.05,
 
         _pxr()                                     # a missing usd-core is said before any work
     data = _load(source)
+    amplitude = DEFAULT_AMPLITUDE if amplitude is None else amplitude
     if writer == "vtu":
         from ..modes.basis import ModalBasis
         from .modes import save_modes_vtu
@@ -91,6 +128,15 @@ def export_to_file(source: Any, output: str | Path, *, amplitude: float = 0.05,
         from .usd import export_usd as write
     else:
         from .gltf import export_gltf as write
+    if isinstance(data, Animation):
+        if impulse is not None or mode is not None:
+            raise InputError("--impulse / --mode bake a playback of a mode file; an animation is exported with "
+                             "its own frames (--fps / --duration resample it)")
+        stored = data
+        data = _animation_at(data, fps, duration, MAX_ANIMATION_TARGETS if writer == "gltf" else None)
+        fps = data.frame_rate or 30.0
+    else:
+        fps, duration = 30.0 if fps is None else fps, 2.0 if duration is None else duration
     path = write(data, output, amplitude=amplitude, impulse=impulse, mode=mode, duration=duration, fps=fps,
                  up=up, mesh=mesh)
     baked = impulse is not None or mode is not None
@@ -99,11 +145,12 @@ def export_to_file(source: Any, output: str | Path, *, amplitude: float = 0.05,
         if warning:
             warnings.warn(warning, ScFemWarning, stacklevel=2)
     text = f"wrote {path} ({path.stat().st_size / 1024:.0f} KiB)"
-    if writer == "usd":                                # what a Blender user has to set: the frame rate
-        from .usd import frame_rate
-
-        if hasattr(data, "n_modes"):
-            text += f": {data.n_modes} blend shapes" + (f", weights at {fps:g} fps" if baked else "")
-        else:
-            text += f": {data.n_frames} frames of points at {frame_rate(data.times, fps):g} fps"
+    if isinstance(data, Animation):                    # what a Blender user has to set: the frame rate
+        what = "points" if writer == "usd" else "morph targets"
+        text += f": {data.n_frames} frames of {what} at {fps:g} fps"
+        if data is not stored:
+            text += (f", resampled from the {stored.n_frames} at {stored.frame_rate:g} fps stored "
+                     f"({data.meta['resampling']})")
+    elif writer == "usd":
+        text += f": {data.n_modes} blend shapes" + (f", weights at {fps:g} fps" if baked else "")
     return JobResult(written=[path], result=data, text=text)

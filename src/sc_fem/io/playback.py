@@ -43,8 +43,10 @@ def play_modes(modes: Any, output: str | Path | None = None, *,
     mode : int, optional
         Displace this mode at t = 0 (default 0 when there is no ``impulse``).
     amplitude : float, optional
-        Largest vertex displacement of ``mode``, model units (default 5 % of the bounding-box
-        diagonal); only with ``mode`` (or neither ``mode`` nor ``impulse``).
+        Largest vertex displacement of ``mode`` at t = 0, as a fraction of the bounding-box
+        diagonal (default 0.05; the meaning of ``amplitude`` in :func:`sc_fem.io.export.export_to_file`
+        and :func:`sc_fem.io.viewer.write_viewer`: ``sc-fem export --mode K`` releases the same
+        displacement); only with ``mode`` (or neither ``mode`` nor ``impulse``).
     duration : float
         Seconds played.
     fps : float
@@ -68,7 +70,9 @@ def play_modes(modes: Any, output: str | Path | None = None, *,
         Modes above half the frame rate (they alias), or motion too small to see
         (:func:`sc_fem.modes.player.playback_warnings`).
     """
+    from .._validate import positive_scalar
     from ..modes.player import ModalPlayer, playback_warnings
+    from .gltf import DEFAULT_AMPLITUDE
     from .render import render_animation
 
     player = ModalPlayer(_basis(modes))
@@ -77,7 +81,8 @@ def play_modes(modes: Any, output: str | Path | None = None, *,
         player.impulse(int(impulse[0]), [float(j) for j in impulse[1]])
     if mode is not None or impulse is None:
         diag = float(np.linalg.norm(np.ptp(b.vertices, axis=0)))
-        player.excite(0 if mode is None else mode, 0.05 * diag if amplitude is None else amplitude)
+        fraction = DEFAULT_AMPLITUDE if amplitude is None else positive_scalar(amplitude, "amplitude")
+        player.excite(0 if mode is None else mode, fraction * diag)
     elif amplitude is not None:
         raise InputError("--amplitude needs --mode")
     if output is None:
