@@ -182,11 +182,17 @@ def _browser(size: str = "1100,700"):
 
 
 def test_viewer_page_plays_a_strike_in_a_real_browser(chair_modes, tmp_path):
+    """The page loads, its JavaScript unpacks the quantized .glb byte for byte as
+    :func:`~sc_fem.io.viewer.read_viewer_glb` does (length and Adler-32), a click strikes, the chair
+    moves between two screenshots and the console stays free of errors."""
+    import zlib
+
     import imageio.v2 as imageio
     from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.support.ui import Select
 
-    from sc_fem.io.viewer import BUNDLE
+    from sc_fem.io.quantize import EXTENSION
+    from sc_fem.io.viewer import BUNDLE, read_viewer_glb
 
     if not BUNDLE.is_file():
         pytest.skip("the viewer bundle is not built (make viewer; needs npm)")
@@ -216,6 +222,9 @@ def test_viewer_page_plays_a_strike_in_a_real_browser(chair_modes, tmp_path):
         d.quit()
     assert state["strikes"] == 1 and state["errors"] == [] and state["lastImpulse"]["J"] > 0
     assert logs == [], logs
+    glb = read_viewer_glb(page)
+    assert json.loads(glb[20:20 + int.from_bytes(glb[12:16], "little")])["extensionsRequired"] == [EXTENSION]
+    assert state["glb"] == {"bytes": len(glb), "adler32": zlib.adler32(glb)}     # the browser's unpack is exact
 
     def model(p):                                   # the 3-D view without the clock in its corner
         return imageio.imread(p)[:-40, :700, :3].astype(int)

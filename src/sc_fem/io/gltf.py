@@ -63,9 +63,13 @@ Limit: :data:`MAX_ANIMATION_TARGETS` frames (engines upload every target; subsam
 normal deltas -- the page drives signed weights itself, orients its camera by the up axis and
 converts to metres with ``scale_m_per_unit``.
 
-Positions, normals, UVs and morph targets are float32; indices uint32. The document's buffer,
-material and morph targets are assembled by :mod:`sc_fem.io.asset`, the vertex normals computed by
-:mod:`sc_fem.io.normals`.
+Positions, normals, UVs and morph targets are float32; indices uint32. ``quantize=True`` (by default in
+the web viewer's page) stores positions and target displacements as 16-bit and normals as 8-bit
+integers (``KHR_mesh_quantization``, required by the file; :mod:`sc_fem.io.quantize`): the node
+then carries the dequantizing translation and uniform scale, and the viewer layout gives each
+target its own 16-bit range, folded into its morph weight (``extras.sc_fem.quantization``); an
+engine file keeps its weights. The document's buffer, material and morph targets are assembled by
+:mod:`sc_fem.io.asset`, the vertex normals computed by :mod:`sc_fem.io.normals`.
 """
 
 from __future__ import annotations
@@ -224,12 +228,27 @@ def _axes(up: str, scale: float, units: str, engine: bool) -> tuple[np.ndarray, 
 
 
 def gltf_document(source, *, amplitude: float = DEFAULT_AMPLITUDE, impulse=None, mode: int | None = None,
-                  duration: float = 2.0, fps: float = 30.0, up: str = "z", mesh=None, layout: str = "engine"):
+                  duration: float = 2.0, fps: float = 30.0, up: str = "z", mesh=None, layout: str = "engine",
+                  quantize: bool = False):
     """The pygltflib document of :func:`export_gltf` (see there), not written.
 
     ``layout="viewer"`` gives the web viewer's document (model axes and units, one signed morph
     target per mode, no normal deltas; see the module docstring) instead of the engine one.
+    ``quantize=True``: ``KHR_mesh_quantization`` (:func:`sc_fem.io.quantize.quantize_document`;
+    per-target scales folded into the weights for the viewer layout, the node's scale for engines).
     """
+    doc = _gltf_document(source, amplitude=amplitude, impulse=impulse, mode=mode, duration=duration, fps=fps,
+                         up=up, mesh=mesh, layout=layout)
+    if quantize:
+        from .quantize import quantize_document
+
+        quantize_document(doc, per_target=layout == "viewer")
+    return doc
+
+
+def _gltf_document(source, *, amplitude: float, impulse, mode: int | None, duration: float, fps: float, up: str,
+                   mesh, layout: str):
+    """The float32 document of :func:`gltf_document`."""
     from .._validate import positive_scalar
     from ..modes.player import ModalPlayer
     from .animation import Animation
@@ -327,7 +346,7 @@ def gltf_document(source, *, amplitude: float = DEFAULT_AMPLITUDE, impulse=None,
 
 
 def export_gltf(source, path, *, amplitude: float = DEFAULT_AMPLITUDE, impulse=None, mode: int | None = None,
-                duration: float = 2.0, fps: float = 30.0, up: str = "z", mesh=None) -> Path:
+                duration: float = 2.0, fps: float = 30.0, up: str = "z", mesh=None, quantize: bool = False) -> Path:
     """Write a mode file (or :class:`~sc_fem.ModalBasis`) or a vertex animation as glTF 2.0.
 
     The file is +Y up and in metres, with a dielectric double-sided material, normals, and two
@@ -355,6 +374,11 @@ def export_gltf(source, path, *, amplitude: float = DEFAULT_AMPLITUDE, impulse=N
         The source mesh, with the mode file's vertices in the same order: its UVs become
         ``TEXCOORD_0`` and its file normals (if any) ``NORMAL``. A mode file stores no UVs; without
         ``mesh`` the glTF has none.
+    quantize : bool
+        16-bit positions and displacements, 8-bit normals (``KHR_mesh_quantization``, listed in
+        ``extensionsRequired``; the node's translation and scale dequantize, weights unchanged):
+        about two thirds of the size, positions and displacements within ``S / 65534`` of the
+        float ones (``S`` the node's scale, about half the model's size).
 
     Returns
     -------
@@ -367,7 +391,7 @@ def export_gltf(source, path, *, amplitude: float = DEFAULT_AMPLITUDE, impulse=N
     if kind not in (".glb", ".gltf"):
         raise InputError(f"glTF is written as .glb or .gltf, got {path.name!r}")
     doc = gltf_document(source, amplitude=amplitude, impulse=impulse, mode=mode, duration=duration, fps=fps,
-                        up=up, mesh=mesh)
+                        up=up, mesh=mesh, quantize=quantize)
     with atomic_path(path, suffix=kind) as tmp:
         if kind == ".glb":
             doc.save_binary(str(tmp))
@@ -379,8 +403,9 @@ def export_gltf(source, path, *, amplitude: float = DEFAULT_AMPLITUDE, impulse=N
     return path
 
 
-def glb_bytes(source, *, layout: str = "viewer", **options) -> bytes:
+def glb_bytes(source, *, layout: str = "viewer", quantize: bool = False, **options) -> bytes:
     """A ``.glb`` as bytes: by default the web viewer's document (``layout="viewer"``: model axes
     and units, one signed morph target per mode), with ``layout="engine"`` the bytes
-    :func:`export_gltf` writes to a ``.glb``. ``options`` as for :func:`gltf_document`."""
-    return b"".join(gltf_document(source, layout=layout, **options).save_to_bytes())
+    :func:`export_gltf` writes to a ``.glb``. ``quantize=True``: ``KHR_mesh_quantization`` (what
+    ``sc-fem view`` inlines, packed). ``options`` as for :func:`gltf_document`."""
+    return b"".join(gltf_document(source, layout=layout, quantize=quantize, **options).save_to_bytes())

@@ -5,11 +5,18 @@
 // Physics (the same as sc_fem.ModalPlayer): each modal coordinate q_k obeys
 // q'' + 2 zeta w q' + w^2 q = 0 between strikes and is advanced by its exact solution; a strike
 // (impulse J, N s, on vertex v) adds phi_k(v) . J to each modal velocity. Morph target k holds
-// d_k = s_k phi_k / scale (model units), so phi_k(v) = d_k(v) scale / s_k, and the morph weight
+// d_k = s_k phi_k / scale (model units), so phi_k(v) = d_k(v) scale / s_k, and the mode weight
 // is q_k / s_k (plus the slider's static offset).
+//
+// Quantized pages (KHR_mesh_quantization, sc_fem.io.quantize): morph target k holds d_k on its
+// own 16-bit range, so the morph influence is the mode weight times cfg.weight_factors[k], and
+// d_k(v) = nodeScale * weight_factors[k] * (normalized value). The glb arrives packed
+// (sc_fem.io.viewer.pack_glb): zlib, then per 16-bit vertex stream zigzag residuals from a parent
+// vertex in byte planes; unpack() undoes it exactly before GLTFLoader reads the glb.
 import * as THREE from 'three';
 import { GLTFLoader } from 'three/examples/jsm/loaders/GLTFLoader.js';
 import { OrbitControls } from 'three/examples/jsm/controls/OrbitControls.js';
+import { unzlibSync } from 'three/examples/jsm/libs/fflate.module.js';
 
 const cfg = JSON.parse(document.getElementById('sc-config').textContent);
 const state = { ready: false, strikes: 0, time: 0, errors: [], lastImpulse: null };
@@ -19,7 +26,39 @@ function decodeBase64(text) {
   const bin = atob(text.trim());
   const out = new Uint8Array(bin.length);
   for (let i = 0; i < bin.length; i++) out[i] = bin.charCodeAt(i);
-  return out.buffer;
+  return out;
+}
+
+// the glb of a payload packed by sc_fem.io.viewer.pack_glb (spec: cfg.payload)
+function unpack(bytes, spec) {
+  const data = unzlibSync(bytes, { out: new Uint8Array(spec.bytes) });
+  const n = spec.vertices, L = spec.glb_bytes;
+  const parent = new Int32Array(n);
+  for (let i = 0; i < n; i++) {
+    const gap = (data[L + i] | (data[L + n + i] << 8) | (data[L + 2 * n + i] << 16) | (data[L + 3 * n + i] << 24)) >>> 0;
+    parent[i] = gap ? i - gap : -1;
+  }
+  const planes = new Uint8Array(8 * n), vals = new Int32Array(4 * n);
+  for (const off of spec.streams) {
+    planes.set(data.subarray(off, off + 8 * n));
+    for (let i = 0; i < n; i++) {
+      const p = parent[i];
+      for (let c = 0; c < 4; c++) {
+        const z = planes[2 * c * n + i] | (planes[(2 * c + 1) * n + i] << 8);
+        const v = ((((p >= 0 ? vals[4 * p + c] : 0) + ((z >>> 1) ^ -(z & 1))) << 16) >> 16);    // int16, wrapped
+        vals[4 * i + c] = v;
+        data[off + 8 * i + 2 * c] = v & 255;
+        data[off + 8 * i + 2 * c + 1] = (v >> 8) & 255;
+      }
+    }
+  }
+  return data.slice(0, L);
+}
+
+function adler32(bytes) {
+  let a = 1, b = 0;
+  for (let i = 0; i < bytes.length; i++) { a = (a + bytes[i]) % 65521; b = (b + a) % 65521; }
+  return ((b << 16) | a) >>> 0;
 }
 
 // exact state transition of a damped oscillator over dt: [q, v] <- [[a, b], [c, d]] [q, v]
@@ -60,8 +99,9 @@ function resize() {
 }
 window.addEventListener('resize', resize);
 
-let mesh = null, targets = [], q = [], v = [], offsets = [];
+let mesh = null, targets = [], q = [], v = [], offsets = [], nodeScale = 1;
 const freqs = cfg.frequencies_hz, zetas = cfg.damping_ratios, scales = cfg.mode_scales;
+const factors = cfg.weight_factors || freqs.map(() => 1);
 const omegas = freqs.map((f) => 2 * Math.PI * f);
 const K = freqs.length;
 
@@ -96,8 +136,8 @@ function strike(vertex, normal) {
   let peak = 0;
   const dv = new Array(K).fill(0);
   for (let k = 0; k < K; k++) {
-    const d = targets[k];
-    const phi = [d.getX(vertex), d.getY(vertex), d.getZ(vertex)].map((x) => x * cfg.scale_m_per_unit / (scales[k] || 1));
+    const d = targets[k], unit = nodeScale * factors[k];         // model units per stored (normalized) value
+    const phi = [d.getX(vertex), d.getY(vertex), d.getZ(vertex)].map((x) => x * unit * cfg.scale_m_per_unit / (scales[k] || 1));
     dv[k] = -(phi[0] * normal.x + phi[1] * normal.y + phi[2] * normal.z);          // per N s, pushing in
     const amp = omegas[k] > 0 ? Math.abs(dv[k]) / (omegas[k] * (scales[k] || 1)) : 0;
     peak = Math.max(peak, amp);
@@ -140,7 +180,7 @@ function animate() {
       const qk = a * q[k] + b * v[k];
       v[k] = c * q[k] + d * v[k];
       q[k] = qk;
-      mesh.morphTargetInfluences[k] = offsets[k] + (scales[k] ? q[k] / scales[k] : 0);
+      mesh.morphTargetInfluences[k] = factors[k] * (offsets[k] + (scales[k] ? q[k] / scales[k] : 0));
     }
     state.time += dt;
     document.getElementById('clock').textContent = `t = ${state.time.toFixed(3)} s simulated`;
@@ -149,7 +189,12 @@ function animate() {
   renderer.render(scene, camera);
 }
 
-new GLTFLoader().parse(decodeBase64(document.getElementById('sc-glb').textContent), '', (gltf) => {
+let glb;
+try {
+  glb = unpack(decodeBase64(document.getElementById('sc-glb').textContent), cfg.payload);
+  state.glb = { bytes: glb.length, adler32: adler32(glb) };
+} catch (err) { state.errors.push(`cannot unpack the model: ${err}`); console.error(err); }
+if (glb) new GLTFLoader().parse(glb.buffer, '', (gltf) => {
   gltf.scene.traverse((o) => { if (o.isMesh && !mesh) mesh = o; });
   if (!mesh) { state.errors.push('no mesh in the glTF'); return; }
   mesh.material = new THREE.MeshStandardMaterial({ color: 0xd9822b, roughness: 0.7, metalness: 0.0,
@@ -157,8 +202,12 @@ new GLTFLoader().parse(decodeBase64(document.getElementById('sc-glb').textConten
   targets = mesh.geometry.morphAttributes.position;
   q = new Array(K).fill(0); v = new Array(K).fill(0); offsets = new Array(K).fill(0);
   scene.add(gltf.scene);
-  // frame the model: up axis drawn upward, a three-quarter view from above
-  const box = new THREE.Box3().setFromObject(gltf.scene);
+  gltf.scene.updateMatrixWorld(true);
+  nodeScale = mesh.matrixWorld.getMaxScaleOnAxis();           // the quantized positions' scale (1 for float)
+  // frame the model: up axis drawn upward, a three-quarter view from above; the rest shape's box
+  // (three.js' own box would take every quantized target at influence 1) widened by the amplitude
+  const box = new THREE.Box3().setFromObject(gltf.scene, true);
+  box.expandByScalar((cfg.amplitude || 0) * box.getSize(new THREE.Vector3()).length());
   const size = box.getSize(new THREE.Vector3()), centre = box.getCenter(new THREE.Vector3());
   const up = new THREE.Vector3(...cfg.up_vector);
   const axes = [new THREE.Vector3(1, 0, 0), new THREE.Vector3(0, 1, 0), new THREE.Vector3(0, 0, 1)];
