@@ -312,30 +312,26 @@ def test_grouped_options():
 
 def test_block_v_cycle_is_the_column_v_cycle_symmetric_and_positive():
     """The block V-cycle LOBPCG gets (all columns at once) equals itself applied column by
-    column, agrees with pyamg's own V-cycle with the same smoothers, and is symmetric positive
-    definite (LOBPCG needs an SPD preconditioner)."""
-    import pyamg
-
-    from sc_fem.fem.multigrid import JACOBI, BlockVCycle
+    column, and is symmetric positive definite (LOBPCG needs an SPD preconditioner), with pyamg's
+    aggregation and with lattice-block aggregates."""
+    from sc_fem.fem.multigrid import LatticeAMG
+    from sc_fem.fem.static import lattice_aggregates
 
     m = CubeModel.box((24, 4, 4), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
     asm = Assembler(m, "q1i", fixed_dofs=np.arange(3 * 25))
     K = asm.stiffness()
-    ml = pyamg.smoothed_aggregation_solver(K, B=rigid_body_modes(m.nodes_m, asm.free_dofs), max_coarse=50,
-                                           keep=False, presmoother=JACOBI, postsmoother=JACOBI)
-    assert len(ml.levels) >= 2
-    P = BlockVCycle(ml)
-    X = np.random.default_rng(0).standard_normal((K.shape[0], 5))
-    PX = P(X)
-    cols = np.stack([P(X[:, j]) for j in range(5)], axis=1)
-    np.testing.assert_allclose(PX, cols, rtol=1e-12, atol=1e-12 * np.abs(PX).max())
-    G = X.T @ PX
-    np.testing.assert_allclose(G, G.T, rtol=1e-10, atol=1e-12 * np.abs(G).max())
-    assert np.linalg.eigvalsh(0.5 * (G + G.T)).min() > 0
-    ref = ml.solve(X[:, 0], x0=np.zeros(K.shape[0]), maxiter=1, tol=1e-300, cycle="V")
-    # the same Jacobi scaling (pyamg's spectral-radius estimate, which BlockVCycle reuses) and a
-    # Cholesky solve on the coarsest level instead of pyamg's pseudo-inverse
-    assert np.linalg.norm(PX[:, 0] - ref) < 1e-10 * np.linalg.norm(ref)
+    B = rigid_body_modes(m.nodes_m, asm.free_dofs)
+    for agg in (None, lattice_aggregates(m, np.zeros(m.n_nodes, dtype=int), asm.free_dofs)):
+        amg = LatticeAMG(K, B, aggregates=agg, max_coarse=50)
+        assert len(amg.levels) >= 2
+        P = amg.operator()
+        X = np.random.default_rng(0).standard_normal((K.shape[0], 5))
+        PX = P @ X
+        cols = np.stack([P @ X[:, j] for j in range(5)], axis=1)
+        np.testing.assert_allclose(PX, cols, rtol=1e-12, atol=1e-12 * np.abs(PX).max())
+        G = X.T @ PX
+        np.testing.assert_allclose(G, G.T, rtol=1e-10, atol=1e-12 * np.abs(G).max())
+        assert np.linalg.eigvalsh(0.5 * (G + G.T)).min() > 0
 
 
 def test_lobpcg_stops_when_the_wanted_pairs_converge():
@@ -349,8 +345,8 @@ def test_lobpcg_stops_when_the_wanted_pairs_converge():
 
     from sc_fem.fem.eigen import EigenSolver
 
-    m = CubeModel.box((24, 4, 4), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
-    asm = Assembler(m, "q1i", fixed_dofs=np.arange(3 * 25))
+    m = CubeModel.box((30, 5, 3), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
+    asm = Assembler(m, "q1i", fixed_dofs=np.arange(3 * 24))
     K, M = asm.stiffness(), asm.mass()
     B = rigid_body_modes(m.nodes_m, asm.free_dofs)
     solver = EigenSolver(K, M, method="lobpcg", near_null=B)
@@ -534,3 +530,14 @@ def test_a_problem_too_big_for_the_budget_says_how_to_raise_it():
     with pytest.raises(SolverError, match=r"does not fit in memory.*max_memory"):
         eigen.choose_method(3_096_576, 244_974_600, 6, max_memory=8 * 2**30)
     assert eigen.choose_method(3_096_576, 244_974_600, 6, max_memory=12 * 2**30)[0] == "lobpcg"
+
+
+def test_lobpcg_converges_on_the_thin_slatted_chair():
+    """The lattice multigrid (aggregates of lattice-node blocks split by part, node-block Chebyshev
+    smoothing) preconditions the chair's thin slats well enough for LOBPCG: with pyamg's standard
+    hierarchy it stopped at a relative residual of 0.33 after 53 iterations and ``"lobpcg"``
+    raised; now its 10 elastic frequencies are shift-invert's."""
+    lo = modal("builtin:chair", n_modes=10, resolution=32, eigen="lobpcg")
+    si = modal("builtin:chair", n_modes=10, resolution=32, eigen="shift-invert")
+    assert lo.eigen["method"] == "lobpcg" and lo.eigen["stop"] == "converged"
+    np.testing.assert_allclose(lo.frequencies, si.frequencies, rtol=1e-8)

@@ -11,7 +11,8 @@ import sc_fem
 from sc_fem.errors import InputError, SolverError
 from sc_fem.fem import options
 from sc_fem.fem.assemble import Assembler
-from sc_fem.fem.multigrid import StaticAMG, node_blocks, pcg
+from sc_fem.fem.bsr import node_blocks
+from sc_fem.fem.multigrid import LatticeAMG, pcg
 from sc_fem.fem.options import CG_AMG_MIN_DOFS, StaticOptions, choose_static_solver
 from sc_fem.fem.rigid import rigid_body_modes
 from sc_fem.fem.static import solve_static
@@ -165,7 +166,7 @@ def test_the_preconditioner_is_symmetric_positive_definite_and_node_blocks_are_e
     K = asm.stiffness()
     Kb = node_blocks(K)
     assert Kb.blocksize == (3, 3) and abs(Kb - K).max() == 0.0
-    amg = StaticAMG(K, rigid_body_modes(model.nodes_m, asm.free_dofs))
+    amg = LatticeAMG(K, rigid_body_modes(model.nodes_m, asm.free_dofs))
     rng = np.random.default_rng(0)
     u, v = rng.standard_normal((2, K.shape[0]))
     Mu, Mv = amg.vcycle(u), amg.vcycle(v)

@@ -13,10 +13,11 @@ Two methods, both returning the smallest eigenvalues:
     static solves) and passed to ``eigsh`` as ``OPinv`` (a ``LinearOperator``), so scipy never
     factorizes anything itself.
 ``"lobpcg"``
-    :func:`scipy.sparse.linalg.lobpcg` preconditioned by a pyamg smoothed-aggregation solver of
-    ``K - sigma M`` (:mod:`sc_fem.fem.multigrid`) whose near-null space is the 6 rigid-body modes
-    of the free DOFs (:mod:`sc_fem.fem.rigid`). Needs only ``O(nnz(K))`` memory: the method for
-    models whose factorization would not fit.
+    :func:`scipy.sparse.linalg.lobpcg` preconditioned by a V-cycle of the smoothed-aggregation
+    multigrid of ``K - sigma M`` (:class:`sc_fem.fem.multigrid.LatticeAMG`, on the whole block of
+    vectors at once) whose near-null space is the 6 rigid-body modes of the free DOFs
+    (:mod:`sc_fem.fem.rigid`). Needs only ``O(nnz(K))`` memory: the method for models whose
+    factorization would not fit.
 
 ``method="auto"`` (:func:`~sc_fem.fem.options.choose_method`) predicts both solvers' times from
 :data:`~sc_fem.fem.options.SPEED_MODEL` (calibrated by ``benchmarks/scale.py``) and their memory
@@ -36,7 +37,6 @@ asking again for more eigenpairs costs no second setup; :func:`solve_eigen` is t
 from __future__ import annotations
 
 import time
-from contextlib import nullcontext
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -46,8 +46,9 @@ from scipy.sparse.linalg import LinearOperator, eigsh
 from .._log import logger
 from .._validate import positive_int
 from ..errors import InputError, SolverError
-from .multigrid import JACOBI, BlockVCycle, _seeded_global_random
 # EigenOptions and lobpcg_memory_estimate are re-exported: the eigensolver's names stay importable from here
+from .multigrid import LatticeAMG
+from .spmm import BlockProduct
 from .options import (METHODS, EigenOptions, choose_method, factor_memory_estimate,  # noqa: F401
                       lobpcg_memory_estimate, memory_budget)
 
@@ -186,7 +187,10 @@ class EigenSolver:
     sigma : float, optional
         Shift in 1/s^2; must be negative. Default ``-SHIFT_FRACTION * lambda_scale(K, M)``.
     near_null : ndarray, shape (n, 6), optional
-        Rigid-body modes for the AMG near-null space (LOBPCG); default: constant vectors.
+        Rigid-body modes for the AMG near-null space (LOBPCG); default: the translations.
+    aggregates : ndarray of int, shape (n // 3,), optional
+        The AMG's finest aggregates, one per DOF node (LOBPCG; e.g.
+        :func:`sc_fem.fem.static.lattice_aggregates`); default: pyamg's standard aggregation.
     tol : float
         ARPACK tolerance (0 = machine precision).
     lobpcg_tol, maxiter : float, int
@@ -210,8 +214,9 @@ class EigenSolver:
     """
 
     def __init__(self, K: sp.spmatrix, M: sp.spmatrix, *, method: str = "auto", backend: str = "auto",
-                 sigma: float | None = None, near_null: np.ndarray | None = None, tol: float = 0.0,
-                 lobpcg_tol: float = 1e-3, maxiter: int = 400, max_memory: float | None = None, seed: int = 0) -> None:
+                 sigma: float | None = None, near_null: np.ndarray | None = None,
+                 aggregates: np.ndarray | None = None, tol: float = 0.0, lobpcg_tol: float = 1e-3,
+                 maxiter: int = 400, max_memory: float | None = None, seed: int = 0) -> None:
         if method not in METHODS:
             raise InputError(f"method must be one of {list(METHODS)}, got {method!r}")
         if not (sp.issparse(K) and sp.issparse(M)) or K.shape != M.shape or K.shape[0] != K.shape[1]:
@@ -226,7 +231,8 @@ class EigenSolver:
         self.sigma = float(sigma)
         self.method, self.backend, self.reason = method, backend, ""
         self._auto, self._requested_backend = False, backend
-        self.near_null, self.tol, self.lobpcg_tol, self.maxiter = near_null, tol, lobpcg_tol, maxiter
+        self.near_null, self.aggregates = near_null, aggregates
+        self.tol, self.lobpcg_tol, self.maxiter = tol, lobpcg_tol, maxiter
         self.max_memory, self.seed = max_memory, seed
         self.n_setups = 0
         self._op = None                       # OPinv (shift-invert) or the V-cycle (LOBPCG)
@@ -252,20 +258,15 @@ class EigenSolver:
             self.backend = fac.backend
             self._op = LinearOperator(A.shape, matvec=fac.solve, matmat=fac.solve, dtype=np.float64)
         else:
-            import pyamg
-
-            from .spmm import BlockProduct
-
-            self._products = BlockProduct(A), BlockProduct(self.M)     # K - sigma M and M; row-parallel with numba
-            # the rigid-body modes are the exact near-null space of K: pyamg's default smoothing of
-            # the candidates (4 block Gauss-Seidel sweeps) adds nothing but time (5 s at 931,896 DOFs)
-            kw = {"improve_candidates": None} if self.near_null is not None else {}
-            with _seeded_global_random(self.seed):
-                ml = pyamg.smoothed_aggregation_solver(A, B=self.near_null, max_coarse=500, keep=False,
-                                                       presmoother=JACOBI, postsmoother=JACOBI, **kw)
-                self._op = BlockVCycle(ml).operator()
-            self.backend = "pyamg"
-            self._info["levels"] = len(ml.levels)
+            n = self.n
+            B = self.near_null
+            if B is None:                  # no rigid-body modes given: the translations (or constants)
+                B = np.kron(np.ones((n // 3, 1)), np.eye(3)) if n % 3 == 0 else np.ones((n, 1))
+            amg = LatticeAMG(A, B, aggregates=self.aggregates, blocksize=3 if n % 3 == 0 else 1, seed=self.seed)
+            self._products = amg.levels[0], BlockProduct(self.M)       # K - sigma M as node blocks, and M
+            self._op = amg.operator()
+            self.backend = "pyamg"             # pyamg aggregation and tentative prolongator
+            self._info["levels"] = len(amg.levels)
         self._info["factor_memory_estimate"] = factor_memory_estimate(self.n, self.K.nnz)
         self.n_setups += 1
         self._setup_seconds += time.perf_counter() - t0
@@ -315,8 +316,8 @@ class EigenSolver:
         from .._jit import blas_single_threaded
 
         Ap, Mp = self._products
-        parallel = "numba" in (Ap.kernel, Mp.kernel)
-        with warnings.catch_warnings(), (blas_single_threaded() if parallel else nullcontext()):
+        A_op = LinearOperator(Ap.A.shape, matvec=Ap, matmat=Ap, dtype=np.float64)
+        with warnings.catch_warnings(), blas_single_threaded():
             warnings.simplefilter("ignore")        # lobpcg warns when it stops at maxiter; we report residuals
             # lobpcg's tol is absolute on ||A x - mu M x|| (x M-normalized): scale it by the shift, the
             # smallest eigenvalue scale we know, times the typical ||M x|| ~ sqrt(mean diag M)
@@ -340,7 +341,7 @@ class EigenSolver:
             stop, prev = "converged", None
             while True:
                 asked = min(LOBPCG_ROUNDS[rounds > 0], self.maxiter - its)
-                lam, V, hist = lobpcg(Ap.operator(), X, B=Mp.operator(), M=self._op, tol=tol_abs, maxiter=asked,
+                lam, V, hist = lobpcg(A_op, X, B=Mp.operator(), M=self._op, tol=tol_abs, maxiter=asked,
                                       largest=False, retResidualNormsHistory=True)
                 its, rounds = its + len(hist), rounds + 1
                 stalled = len(hist) < asked            # it ended the round before maxiter on its own
@@ -406,13 +407,12 @@ class EigenSolver:
 
 
 def solve_eigen(K: sp.spmatrix, M: sp.spmatrix, k: int, *, method: str = "auto", backend: str = "auto",
-                sigma: float | None = None, near_null: np.ndarray | None = None, tol: float = 0.0,
-                lobpcg_tol: float = 1e-3, maxiter: int = 400, max_memory: float | None = None, seed: int = 0) -> EigenResult:
+                sigma: float | None = None, near_null: np.ndarray | None = None,
+                aggregates: np.ndarray | None = None, tol: float = 0.0, lobpcg_tol: float = 1e-3,
+                maxiter: int = 400, max_memory: float | None = None, seed: int = 0) -> EigenResult:
     """Smallest ``k`` eigenpairs of ``K phi = lambda M phi``: ``EigenSolver(K, M, ...).solve(k)``.
 
-    The parameters are those of :class:`EigenSolver`; ``k`` is the number of eigenpairs
-    (``1 <= k < n``). Use :class:`EigenSolver` directly to solve again (e.g. for more pairs)
-    without a second factorization.
+    Use :class:`EigenSolver` directly to solve again (e.g. for more pairs) without a second setup.
 
     Parameters
     ----------
@@ -427,7 +427,10 @@ def solve_eigen(K: sp.spmatrix, M: sp.spmatrix, k: int, *, method: str = "auto",
     sigma : float, optional
         Shift in 1/s^2; must be negative. Default ``-SHIFT_FRACTION * lambda_scale(K, M)``.
     near_null : ndarray, shape (n, 6), optional
-        Rigid-body modes for the AMG near-null space (LOBPCG); default: constant vectors.
+        Rigid-body modes for the AMG near-null space (LOBPCG); default: the translations.
+    aggregates : ndarray of int, shape (n // 3,), optional
+        The AMG's finest aggregates, one per DOF node (LOBPCG; e.g.
+        :func:`sc_fem.fem.static.lattice_aggregates`); default: pyamg's standard aggregation.
     tol : float
         ARPACK tolerance (0 = machine precision).
     lobpcg_tol, maxiter : float, int
@@ -443,5 +446,5 @@ def solve_eigen(K: sp.spmatrix, M: sp.spmatrix, k: int, *, method: str = "auto",
         Eigenvalues (1/s^2, shape (k,)), ``M``-orthonormal vectors (shape (n, k)), residuals,
         the method chosen and why.
     """
-    return EigenSolver(K, M, method=method, backend=backend, sigma=sigma, near_null=near_null, tol=tol,
+    return EigenSolver(K, M, method=method, backend=backend, sigma=sigma, near_null=near_null, aggregates=aggregates, tol=tol,
                        lobpcg_tol=lobpcg_tol, maxiter=maxiter, max_memory=max_memory, seed=seed).solve(k)

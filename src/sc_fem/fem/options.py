@@ -181,7 +181,7 @@ class StaticOptions:
     solver : {"auto", "direct", "cg-amg"}
         ``"direct"``: sparse Cholesky (:func:`sc_fem.fem.linsolve.factorize`); ``"cg-amg"``:
         conjugate gradients preconditioned by a smoothed-aggregation AMG V-cycle
-        (:class:`sc_fem.fem.multigrid.StaticAMG`); ``"auto"`` (:func:`choose_static_solver`): CG +
+        (:class:`sc_fem.fem.multigrid.LatticeAMG`); ``"auto"`` (:func:`choose_static_solver`): CG +
         AMG from :data:`CG_AMG_MIN_DOFS` free DOFs on for trilinear cubes, else direct, and direct
         after all if CG has not converged within :data:`AUTO_CG_ITERATIONS` iterations and the
         factorization fits in memory.

@@ -6,7 +6,7 @@ forces on arbitrary points such as source-mesh vertices, mapped to the nodes wit
 (:func:`sc_fem.lattice.embed.embed`). Fixed nodes are condensed out (``K`` stays symmetric) and the
 reduced system is solved by a sparse Cholesky factorization (:func:`sc_fem.fem.linsolve.factorize`)
 or, for large models, by conjugate gradients preconditioned with algebraic multigrid
-(:class:`sc_fem.fem.multigrid.StaticAMG`; the choice: :class:`~sc_fem.fem.options.StaticOptions`).
+(:class:`sc_fem.fem.multigrid.LatticeAMG`; the choice: :class:`~sc_fem.fem.options.StaticOptions`).
 The AMG's finest aggregates are blocks of :data:`AGGREGATE_WIDTH` ^3 lattice nodes of one part.
 
 A part of the model that is not held (no fixed node, or fixed nodes that leave a rigid motion
@@ -318,12 +318,12 @@ def _solve_cg_amg(K: sp.csr_matrix, b: np.ndarray, nodes: np.ndarray, free_dofs:
     """CG + AMG for ``K x = b`` (N/m, N): ``(x, "pyamg")``, or ``(None, "")`` when CG did not
     converge and ``opts.solver == "auto"`` may fall back to the direct solve (the times and the
     failure go into ``t`` and ``info``); an explicit ``"cg-amg"`` raises :class:`SolverError`."""
-    from .multigrid import StaticAMG
+    from .multigrid import LatticeAMG
     from .options import AUTO_CG_ITERATIONS, factor_memory_estimate, memory_budget
     from .rigid import rigid_body_modes
 
     bs = 3 if K.shape[0] % 3 == 0 else 1
-    amg = StaticAMG(K, rigid_body_modes(nodes, free_dofs), aggregates=aggregates, blocksize=bs)
+    amg = LatticeAMG(K, rigid_body_modes(nodes, free_dofs), aggregates=aggregates, blocksize=bs)
     auto = opts.solver == "auto"
     need, budget = factor_memory_estimate(K.shape[0], K.nnz), memory_budget(opts.max_memory)
     fits = need <= budget

@@ -19,7 +19,7 @@ from ..fem.assemble import Assembler
 from ..fem.eigen import EigenSolver
 from ..fem.highorder import DEGREES, HighOrderAssembler, HighOrderCubes
 from ..fem.rigid import rigid_body_modes
-from ..fem.static import held_parts, node_parts
+from ..fem.static import held_parts, lattice_aggregates, node_parts
 from ..lattice.cubes import CubeModel
 from .basis import ModalBasis
 from .options import ModalRequest
@@ -35,9 +35,9 @@ about ``1e-17 .. 1e-16 * lambda_scale`` (round-off); the first elastic (bending)
 the threshold (measured with ``solve_eigen`` on ``CubeModel.box((200, 1, 1), ...)``)."""
 
 
-def _unsupported_parts(model: CubeModel, fixed: np.ndarray) -> int:
-    """Connected parts whose fixed nodes leave some rigid motion free (each may have up to 6)."""
-    labels = node_parts(model)
+def _unsupported_parts(model: CubeModel, labels: np.ndarray, fixed: np.ndarray) -> int:
+    """Connected parts (node ``labels``) whose fixed nodes leave some rigid motion free (each may
+    have up to 6)."""
     n_parts = int(labels.max()) + 1
     return int(n_parts - held_parts(model, labels, fixed, n_parts).sum())
 
@@ -80,13 +80,15 @@ def solve_scene(scene, req: ModalRequest) -> Solved:
     n = K.shape[0]
     if n == 0:
         raise InputError("every node is fixed: no modes to compute")
-    n_rigid_expected = 6 * _unsupported_parts(model, fixed)
+    labels = node_parts(model)
+    n_rigid_expected = 6 * _unsupported_parts(model, labels, fixed)
     want = DEFAULT_N_MODES if (n_modes is None and max_frequency is None) else n_modes
     lam_max = None if max_frequency is None else (2.0 * np.pi * max_frequency) ** 2
     k_cap = min(n - 1, max_modes + n_rigid_expected + 6)
     k = n_rigid_expected + (want if want is not None else 12)
     t0 = time.perf_counter()
-    solver = EigenSolver(K, M, method=req.eigen.solver, backend=req.eigen.backend,
+    aggregates = None if req.element in DEGREES else lattice_aggregates(model, labels, asm.free_dofs)
+    solver = EigenSolver(K, M, method=req.eigen.solver, backend=req.eigen.backend, aggregates=aggregates,
                          near_null=rigid_body_modes(nodes_m, asm.free_dofs), max_memory=req.eigen.max_memory)
     scale = solver.lambda_scale
     passes = 0
