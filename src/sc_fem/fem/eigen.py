@@ -47,6 +47,7 @@ from .._log import logger
 from .._validate import positive_int
 from ..errors import InputError, SolverError
 # EigenOptions and lobpcg_memory_estimate are re-exported: the eigensolver's names stay importable from here
+from .bsr import node_blocks
 from .multigrid import LatticeAMG
 from .spmm import BlockProduct
 from .options import (METHODS, EigenOptions, choose_method, factor_memory_estimate,  # noqa: F401
@@ -258,11 +259,10 @@ class EigenSolver:
             self.backend = fac.backend
             self._op = LinearOperator(A.shape, matvec=fac.solve, matmat=fac.solve, dtype=np.float64)
         else:
-            n = self.n
-            B = self.near_null
-            if B is None:                  # no rigid-body modes given: the translations (or constants)
-                B = np.kron(np.ones((n // 3, 1)), np.eye(3)) if n % 3 == 0 else np.ones((n, 1))
-            amg = LatticeAMG(A, B, aggregates=self.aggregates, blocksize=3 if n % 3 == 0 else 1, seed=self.seed)
+            bs = 3 if self.n % 3 == 0 else 1
+            A = node_blocks(A) if bs == 3 else A     # node blocks now: the CSR copy is freed before the set-up
+            amg = LatticeAMG(A, self.near_null, aggregates=self.aggregates, blocksize=bs, seed=self.seed)
+            del A
             self._products = amg.levels[0], BlockProduct(self.M)       # K - sigma M as node blocks, and M
             self._op = amg.operator()
             self.backend = "pyamg"             # pyamg aggregation and tentative prolongator

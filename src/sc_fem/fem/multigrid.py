@@ -128,9 +128,11 @@ class LatticeAMG:
     Parameters
     ----------
     A : scipy.sparse matrix, shape (n, n)
-        Symmetric positive definite, e.g. the reduced stiffness (N/m), DOFs node-major.
-    near_null : ndarray, shape (n, k)
-        Near-null space: the 6 rigid-body modes (:func:`sc_fem.fem.rigid.rigid_body_modes`).
+        Symmetric positive definite, e.g. the reduced stiffness (N/m), DOFs node-major; a BSR matrix
+        of ``blocksize`` blocks is used as it is (no copy).
+    near_null : ndarray, shape (n, k), optional
+        Near-null space: the 6 rigid-body modes (:func:`sc_fem.fem.rigid.rigid_body_modes`);
+        default the 3 translations (``blocksize`` 3) or the constant vector.
     aggregates : ndarray of int, shape (n // 3,), optional
         Aggregate of every node of the finest level; default pyamg's standard aggregation.
     blocksize : int
@@ -151,7 +153,7 @@ class LatticeAMG:
         Wall time of the setup, s.
     """
 
-    def __init__(self, A: sp.spmatrix, near_null: np.ndarray, *, aggregates: np.ndarray | None = None,
+    def __init__(self, A: sp.spmatrix, near_null: np.ndarray | None = None, *, aggregates: np.ndarray | None = None,
                  blocksize: int = 3, max_coarse: int = 600, kernel: str = "auto", seed: int = 0) -> None:
         import time
 
@@ -165,8 +167,14 @@ class LatticeAMG:
         from pyamg.aggregation.tentative import fit_candidates
         from pyamg.strength import symmetric_strength_of_connection
 
-        Ab = node_blocks(A) if blocksize == 3 else sp.bsr_matrix(A, blocksize=(blocksize,) * 2)
+        if sp.issparse(A) and A.format == "bsr" and A.blocksize == (blocksize,) * 2:
+            Ab = A                                      # already node blocks (no second copy of A)
+        else:
+            Ab = node_blocks(A) if blocksize == 3 else sp.bsr_matrix(A, blocksize=(blocksize,) * 2)
         kernel = choose_kernel(kernel)
+        n = A.shape[0]
+        if near_null is None:
+            near_null = np.kron(np.ones((n // 3, 1)), np.eye(3)) if blocksize == 3 else np.ones((n, 1))
         B = np.asarray(near_null, dtype=np.float64)
         self.levels: list[_Level] = []
         while True:
