@@ -31,6 +31,8 @@ def register(sub) -> None:
     add_up_arg(p, uses="glTF turns it onto +Y (the up axis of glTF, three.js, Blender); USD's upAxis (x: onto +Y)")
     p.add_argument("--mesh", metavar="MESH", default=None, help="the source mesh the file was computed from (same "
                    "vertices): its UVs (glTF TEXCOORD_0, USD primvars:st) and its file normals, if any, are kept")
+    p.add_argument("--quantize", action="store_true", help="glTF only: 16-bit positions and mode displacements, "
+                   "8-bit normals (KHR_mesh_quantization, required by the file; weights unchanged): 2/3 of the size")
     add_quiet(p)
 
     v = command(sub, "view", run_view, outputs=(".html", ".htm"),
@@ -50,7 +52,7 @@ def run_export(args) -> int:
 
     return finish(args, export_to_file(args.source, args.output, amplitude=args.amplitude,
                                        impulse=impulse_arg(args.impulse), mode=args.mode, duration=args.duration,
-                                       fps=args.fps, up=args.up, mesh=args.mesh))
+                                       fps=args.fps, up=args.up, mesh=args.mesh, quantize=args.quantize))
 
 
 def run_view(args) -> int:

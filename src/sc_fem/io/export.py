@@ -47,7 +47,7 @@ def _animation_at(anim: Any, fps: float | None, duration: float | None, max_fram
 def export_to_file(source: Any, output: str | Path, *, amplitude: float | None = None,
                    impulse: tuple[int, Sequence[float]] | None = None, mode: int | None = None,
                    duration: float | None = None, fps: float | None = None, up: str = "z",
-                   mesh: Any = None) -> JobResult:
+                   mesh: Any = None, quantize: bool = False) -> JobResult:
     """Write a mode file or a vertex animation as glTF 2.0 (``.glb``/``.gltf``), OpenUSD
     (``.usd``/``.usda``/``.usdc``), or a mode file's shapes as ``.vtu`` (one point array per mode).
 
@@ -79,6 +79,9 @@ def export_to_file(source: Any, output: str | Path, *, amplitude: float | None =
         The model's up axis (turned onto glTF's +Y; USD's ``upAxis``).
     mesh : path or mesh, optional
         The source mesh (same vertices): its UVs and file normals are kept.
+    quantize : bool
+        glTF only: 16-bit positions and displacements, 8-bit normals (``KHR_mesh_quantization``;
+        see :func:`sc_fem.io.gltf.export_gltf`), the weights unchanged.
 
     Returns
     -------
@@ -89,8 +92,9 @@ def export_to_file(source: Any, output: str | Path, *, amplitude: float | None =
     Raises
     ------
     InputError
-        An output suffix not in :data:`EXPORT_FORMATS`, options the format does not take, or an
-        animation longer than glTF takes (the message names the ``--fps`` / ``--duration`` that fit).
+        An output suffix not in :data:`EXPORT_FORMATS`, options the format does not take
+        (``quantize`` outside glTF, a baked playback as ``.vtu``), or an animation longer than glTF
+        takes (the message names the ``--fps`` / ``--duration`` that fit).
     ScFemError
         USD output without ``usd-core`` installed (the message says what to install).
 
@@ -105,6 +109,9 @@ def export_to_file(source: Any, output: str | Path, *, amplitude: float | None =
     writer = EXPORT_FORMATS.get(Path(output).suffix.lower())
     if writer is None:
         raise InputError(f"cannot export to {Path(output).name!r}: use {', '.join(EXPORT_FORMATS)}")
+    if quantize and writer != "gltf":
+        raise InputError(f"--quantize applies to glTF only (.glb, .gltf: KHR_mesh_quantization), not to "
+                         f"{Path(output).suffix.lower()}")
     if writer == "usd":
         from .usd import _pxr
 
@@ -138,7 +145,7 @@ def export_to_file(source: Any, output: str | Path, *, amplitude: float | None =
     else:
         fps, duration = 30.0 if fps is None else fps, 2.0 if duration is None else duration
     path = write(data, output, amplitude=amplitude, impulse=impulse, mode=mode, duration=duration, fps=fps,
-                 up=up, mesh=mesh)
+                 up=up, mesh=mesh, **({"quantize": True} if quantize else {}))
     baked = impulse is not None or mode is not None
     if baked:                                          # the rule and words of sc-fem play
         warning = alias_warning(data.frequencies, fps, moving_modes(data, impulse=impulse, mode=mode))
