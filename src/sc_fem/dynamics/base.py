@@ -5,17 +5,17 @@ The semi-discrete equations of motion on the free DOFs (fixed nodes condensed ou
 
     M a + C v + f_int(u) = f(t),       C = a0 M + a1 K  (Rayleigh damping)
 
-with ``u`` node displacements in metres, ``M`` (kg) the consistent or lumped mass,
-``f_int = K u`` (linear) or the corotational force, ``f(t)`` the loads of a
-:class:`~sc_fem.dynamics.loads.LoadSet` (N). :class:`TimeIntegrator` is what every method shares (XPBD too);
-:class:`AssembledIntegrator` builds ``K``, ``M`` and ``C``, and its subclasses implement
-:meth:`AssembledIntegrator._advance`.
+with ``u`` node displacements in metres, ``M`` (kg) the consistent or lumped mass, ``f_int = K u``
+(linear) or the corotational force, ``f(t)`` the loads of a :class:`~sc_fem.dynamics.loads.LoadSet`
+(N). :class:`TimeIntegrator` is what every method shares (XPBD too); :class:`AssembledIntegrator`
+builds ``K``, ``M`` and ``C``, and its subclasses implement :meth:`AssembledIntegrator._advance`.
 """
 
 from __future__ import annotations
 
 import time as _time
 from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -27,7 +27,9 @@ from ..lattice.boundary import fixed_dofs as _fixed_dofs
 from ..fem.elements import DEFAULT_ELEMENT
 from ..errors import BoundaryConditionError, InputError, SolverError
 from ..lattice.cubes import CubeModel
-from ..fem.linsolve import factorize
+from ..fem.options import DynamicOptions
+from ..fem.rigid import rigid_body_modes
+from ..fem.static import lattice_aggregates, node_parts
 from .contact import Contact
 from .loads import LoadSet
 from .state import Energy, State
@@ -59,12 +61,10 @@ def max_frequency(K: sp.spmatrix, M_lumped: sp.spmatrix | np.ndarray, *, tol: fl
             lam = 0.0
             for _ in range(5000):                          # power iteration (A is PSD)
                 y = A @ x
-                lam_new = float(x @ y)
-                x = y / np.linalg.norm(y)
-                if abs(lam_new - lam) <= tol * abs(lam_new):
-                    lam = lam_new
+                lam_new, x = float(x @ y), y / np.linalg.norm(y)
+                done, lam = abs(lam_new - lam) <= tol * abs(lam_new), lam_new
+                if done:
                     break
-                lam = lam_new
     return float(np.sqrt(max(lam, 0.0)))
 
 
@@ -214,6 +214,9 @@ class AssembledIntegrator(TimeIntegrator):
         Initial displacement (m) and velocity (m/s); default zero.
     backend : str
         Sparse factorization backend (:func:`sc_fem.fem.linsolve.factorize`).
+    solver : DynamicOptions or {"auto", "direct", "cg-amg"}, optional
+        How the linear systems (effective matrices, consistent mass) are solved
+        (:class:`~sc_fem.fem.options.DynamicOptions`, :class:`~sc_fem.fem.linsolve.SystemSolver`).
     """
 
     supports = frozenset({"loads", "contact", "impulses", "velocity", "rayleigh", "element"})
@@ -247,12 +250,12 @@ class AssembledIntegrator(TimeIntegrator):
     def __init__(self, model: CubeModel, dt: float, *, element: str = DEFAULT_ELEMENT,
                  fixed_nodes: ArrayLike | None = None, loads: LoadSet | None = None, contact: Contact | None = None,
                  rayleigh: tuple[float, float] = (0.0, 0.0), lumped: bool = False, u0: ArrayLike | None = None,
-                 v0: ArrayLike | None = None, backend: str = "auto") -> None:
+                 v0: ArrayLike | None = None, backend: str = "auto", solver: DynamicOptions | str | None = None) -> None:
         super().__init__(model, dt, fixed_nodes=fixed_nodes, loads=loads)
-        self.element = element
-        self.backend = backend
-        fn = self.fixed_nodes
-        t0 = _time.perf_counter()
+        self.element, self.backend = element, backend
+        opts = DynamicOptions.coerce(solver)
+        self.solver_options = opts if backend == "auto" else replace(opts, backend=backend)
+        fn, t0 = self.fixed_nodes, _time.perf_counter()
         self.asm = Assembler(model, element, fixed_dofs=_fixed_dofs(fn))
         if self.asm.shape[0] == 0:
             raise InputError("every node is fixed: nothing moves")
@@ -261,8 +264,7 @@ class AssembledIntegrator(TimeIntegrator):
         self.M = self.asm.mass(lumped=self.lumped)
         # inverse of the lumped (diagonal) mass, 1/kg; None for the consistent mass
         self._minv = 1.0 / self.M.diagonal() if self.lumped else None
-        self._dt_crit = None
-        self.setup_seconds = _time.perf_counter() - t0
+        self._dt_crit, self.setup_seconds = None, _time.perf_counter() - t0
         r = as_float_array(rayleigh, "rayleigh", (2,))
         if np.any(r < 0):
             raise InputError(f"rayleigh coefficients must be >= 0, got {r.tolist()}")
@@ -278,10 +280,18 @@ class AssembledIntegrator(TimeIntegrator):
         if self.contact is not None:
             self.contact.check_initial(u)
         self._u, self._v = self.asm.restrict(u), self.asm.restrict(v)
-        self._mass_solver = None
+        self._mass_solver, self._amg_data = None, None
         self._a = self._initial_acceleration()
 
     # ------------------------------------------------------------------ helpers
+    def _linear_solver(self, A: sp.spmatrix) -> "SystemSolver":
+        """Solver of ``A x = b`` (``A`` SPD on the free DOFs, e.g. an effective matrix) chosen by
+        :attr:`solver_options`: direct, or CG + AMG with the lattice's rigid modes and aggregates."""
+        if self._amg_data is None:                   # the AMG's near-null space and finest aggregates
+            fd, m = self.asm.free_dofs, self.model
+            self._amg_data = (rigid_body_modes(m.nodes_m, fd), lattice_aggregates(m, node_parts(m), fd))
+        return self.solver_options.solver_for(A, near_null=self._amg_data[0], aggregates=self._amg_data[1])
+
     def damping(self, v: np.ndarray, K: sp.spmatrix | None = None) -> np.ndarray:
         """Damping force ``C v = a0 M v + a1 K v`` on the free DOFs.
 
@@ -351,7 +361,7 @@ class AssembledIntegrator(TimeIntegrator):
         return self.asm.restrict(self.loads.force(t))
 
     def solve_mass(self, r: np.ndarray) -> np.ndarray:
-        """``M^-1 r`` on the free DOFs (the consistent mass is factorized on first use).
+        """``M^-1 r`` on the free DOFs (the consistent mass's :meth:`_linear_solver` is set up on first use).
 
         Parameters
         ----------
@@ -366,7 +376,7 @@ class AssembledIntegrator(TimeIntegrator):
         if self._minv is not None:
             return self._minv * r
         if self._mass_solver is None:
-            self._mass_solver = factorize(self.M, self.backend)
+            self._mass_solver = self._linear_solver(self.M)
         return self._mass_solver.solve(r)
 
     def _initial_acceleration(self) -> np.ndarray:

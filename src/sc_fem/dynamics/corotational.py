@@ -43,7 +43,8 @@ Where the passes start, and what happens when they do not converge (:meth:`Corot
 
 ``S`` is solved by conjugate gradients preconditioned with the factorization of an earlier step's
 ``S`` -- the rotations change little between steps -- and refactorized only when CG needs more
-than ``max_cg`` iterations. No step loops over cubes or materials. Cost against linear Newmark and
+than ``max_cg`` iterations; with CG + AMG (``solver``, :class:`~sc_fem.fem.options.DynamicOptions`)
+by CG preconditioned with the AMG hierarchy of an earlier step's ``S``, set up again when CG slows. No step loops over cubes or materials. Cost against linear Newmark and
 how to reproduce it: ``docs/corotational.md``.
 """
 
@@ -55,7 +56,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..fem.elements import DEFAULT_ELEMENT, cube_stiffness
-from ..fem.linsolve import Factorization, factorize
+from ..fem.linsolve import Factorization, SystemSolver, factorize
 from ..errors import InputError
 from ..lattice.cubes import CubeModel
 from .kinematics import cube_rotations
@@ -239,10 +240,23 @@ class Corotational(Newmark):
         self._cache_u = (u, Kt)
         return Kt
 
-    def effective_solver(self, u: np.ndarray) -> Factorization | _LaggedFactor:
-        """Solver of this step's ``S(u)``: conjugate gradients preconditioned by the factorization of
-        an earlier step's ``S`` (the rotations change little from step to step), refactorized when
-        CG needs more than ``max_cg`` iterations; ``max_cg=0`` factorizes every step.
+    @property
+    def info(self) -> dict:
+        """:attr:`Newmark.info <sc_fem.dynamics.newmark.Newmark.info>` with the direct path's
+        factorizations and CG iterations (``n_factorizations``, ``cg_iterations``) added in."""
+        out = super().info
+        if out:
+            out.update(factorizations=out["factorizations"] + self.n_factorizations,
+                       cg_iterations=out["cg_iterations"] + self.cg_iterations)
+        return out
+
+    def effective_solver(self, u: np.ndarray) -> Factorization | _LaggedFactor | SystemSolver:
+        """Solver of this step's ``S(u)``. Direct (``solver_options``, below the automatic choice's
+        threshold): conjugate gradients preconditioned by the factorization of an earlier step's ``S``
+        (the rotations change little from step to step), refactorized when CG needs more than
+        ``max_cg`` iterations; ``max_cg=0`` factorizes every step. CG + AMG: the AMG hierarchy of an
+        earlier step's ``S`` preconditions this one's, set up again when CG slows
+        (:class:`~sc_fem.fem.linsolve.SystemSolver`).
 
         Parameters
         ----------
@@ -251,10 +265,16 @@ class Corotational(Newmark):
 
         Returns
         -------
-        Factorization or _LaggedFactor
+        Factorization, _LaggedFactor or SystemSolver
             ``solve(r)``: ``S^-1 r``, residual force (N) to acceleration (m/s^2).
         """
         S = self._effective(self.tangent(u))
+        if self._S is None:
+            self._S = self._linear_solver(S)
+        elif self._S.kind == "cg-amg":
+            self._S.update(S)
+        if self._S.kind == "cg-amg":
+            return self._S
         if self._pre is None or self._stale or self.max_cg == 0:
             self._pre, self._stale = factorize(S, self.backend), False
             self.n_factorizations += 1

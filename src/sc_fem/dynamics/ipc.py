@@ -21,7 +21,8 @@ Newton's method with the Hessian's contact blocks projected to PSD, a line searc
 at the CCD's collision-free step and halves until ``E`` decreases: every state is
 intersection-free by construction and the step is stable at any ``dt``. When no pair is within
 ``dhat`` and there is no friction, ``E`` is the quadratic of linear implicit Euler: one
-back-solve with a factorization kept for the run (the fast path).
+back-solve with a factorization kept for the run (the fast path), or for large models
+(``solver``) a CG solve preconditioned by algebraic multigrid set up once.
 
 The collision meshes -- the source mesh, the static obstacles (:class:`~sc_fem.dynamics.contact.Ground`,
 ``Sphere``, ``Box``) and the lattice's outer surface for self-contact -- are built in :mod:`.collision`;
@@ -120,7 +121,8 @@ class IPC(AssembledIntegrator):
         super().__init__(model, dt, **kw)
         a0, a1 = self.rayleigh
         self._C = None if not (a0 or a1) else (a0 * self.M + a1 * self.K).tocsr()
-        self._levels: dict = {}       # step length -> (S, its factorization)
+        self._levels: dict = {}       # step length -> (S, its SystemSolver)
+        self._hsys = None             # CG + AMG: the SystemSolver of the contact Hessians
         self._h = self.dt             # the length of the (sub)step being solved
         self._S, self._Sfac = self._level(self.dt)
         self._pre, self._pre_h, self._stale = self._Sfac, self.dt, False
@@ -149,7 +151,10 @@ class IPC(AssembledIntegrator):
     @property
     def info(self) -> dict:
         s, c = self.stats, self.barrier
-        return {"newton_iterations": s.newton, "factorizations": s.factorizations, "contact_steps": s.contact_steps,
+        sys_ = [lv[1] for lv in self._levels.values()] + ([self._hsys] if self._hsys is not None else [])
+        return {"newton_iterations": s.newton, "contact_steps": s.contact_steps, "linear_solver": self._Sfac.kind,
+                "factorizations": s.factorizations + sum(x.stats["factorizations"] for x in sys_),
+                "amg_setups": sum(x.stats["setups"] for x in sys_),
                 "line_search_cuts": s.line_search_cuts, "cg_iterations": s.cg_iterations,
                 "halvings": s.halvings,
                 "dhat": None if c is None else c.dhat, "friction": None if c is None else c.friction,
@@ -159,12 +164,12 @@ class IPC(AssembledIntegrator):
 
     # ------------------------------------------------------------------ the potential
     def _level(self, h: float):
-        """``S = (1/h^2 + a0/h) M + (1 + a1/h) K`` for a (sub)step ``h`` and its factorization (kept)."""
+        """``S = (1/h^2 + a0/h) M + (1 + a1/h) K`` for a (sub)step ``h`` and its solver (kept;
+        :meth:`~sc_fem.dynamics.base.AssembledIntegrator._linear_solver`: factorized, or CG + AMG)."""
         if h not in self._levels:
             a0, a1 = self.rayleigh
             S = ((1.0 / h**2 + a0 / h) * self.M + (1.0 + a1 / h) * self.K).tocsr()
-            self._levels[h] = (S, factorize(S, self.backend))
-            self.stats.factorizations += 1
+            self._levels[h] = (S, self._linear_solver(S))
         return self._levels[h]
 
     def _kphys(self) -> float:
@@ -211,9 +216,20 @@ class IPC(AssembledIntegrator):
         latest factorization (first ``S``'s, then that of an earlier Newton iteration's ``H``: while
         the contacts change little it preconditions well). A solve that needs more than
         ``CG_REFACTOR`` iterations makes the next one factorize its ``H`` (kept as the new
-        preconditioner); CG that does not converge in ``CG_MAXITER`` factorizes at once."""
+        preconditioner); CG that does not converge in ``CG_MAXITER`` factorizes at once. With CG +
+        AMG (``solver``) the AMG hierarchy of an earlier Hessian preconditions instead, set up again
+        on the current one when CG slows (:class:`~sc_fem.fem.linsolve.SystemSolver`)."""
         from scipy.sparse.linalg import LinearOperator, cg
 
+        if self._Sfac.kind == "cg-amg":       # CG + AMG: an earlier Hessian's hierarchy preconditions this one
+            if self._hsys is None:
+                self._hsys = self._linear_solver(H)
+            else:
+                self._hsys.update(H)
+            before = self._hsys.stats["iterations"]
+            y = self._hsys.solve(g)
+            self.stats.cg_iterations += self._hsys.stats["iterations"] - before
+            return y
         if not self._stale:
             count = [0]
 

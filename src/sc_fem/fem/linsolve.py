@@ -189,3 +189,161 @@ def factorize(A: sp.spmatrix, backend: str | None = "auto") -> Factorization:
     if backend in (None, "auto"):
         backend = os.environ.get("SC_FEM_SOLVER", "auto") or "auto"
     return Factorization(A, backend)
+
+
+REFRESH_GROWTH = (1.5, 4)
+"""A :class:`SystemSolver` whose AMG hierarchy is of an earlier matrix rebuilds it on the current
+one once a solve takes more than ``1.5 x`` (+ 4) the iterations of the first solve after a set-up."""
+
+
+ROUNDOFF_FLOOR = 100.0
+"""A CG solve whose recurrence reached ``tol`` but whose recomputed residual stays above it (after
+:func:`~sc_fem.fem.multigrid.pcg`'s restarts, within ``maxiter``) is accepted up to this times
+``tol``: the round-off floor of ``S x = r`` (e.g. 3.2e-12 on the bunny r16's IPC step matrix)."""
+
+
+class SystemSolver:
+    """``A x = b`` for an SPD matrix that may change between solves (the effective matrices of implicit
+    time steps): a sparse Cholesky factorization (:class:`Factorization`), or conjugate gradients
+    preconditioned by a smoothed-aggregation V-cycle (:class:`sc_fem.fem.multigrid.LatticeAMG`).
+
+    After :meth:`update` the AMG hierarchy of the earlier matrix stays the preconditioner (SPD, so
+    CG still converges to the new matrix's solution) until a solve takes more iterations than
+    :data:`REFRESH_GROWTH` allows, or does not converge: then it is set up again on the current one.
+
+    Parameters
+    ----------
+    A : scipy.sparse matrix, shape (n, n)
+        Symmetric positive definite (e.g. ``M + beta dt^2 K``, kg).
+    kind : {"direct", "cg-amg"}
+        The solver (chosen by :meth:`sc_fem.fem.options.DynamicOptions.solver_for`).
+    reason : str
+        Why this one (kept for the record).
+    tol, maxiter : float, int
+        CG stops at ``||A x - b|| <= tol ||b||``; more than ``maxiter`` iterations fail.
+    backend : str
+        Factorization backend (:func:`factorize`).
+    fallback : str or None
+        None: a CG failure raises :class:`~sc_fem.errors.SolverError` (with this as its hint:
+        ``hint``); else the direct solve takes over for good (the automatic choice).
+    hint : str
+        What to do, appended to the error of a CG that failed.
+    near_null, aggregates : ndarray, optional
+        The AMG's near-null space (n, k) and finest aggregates (n // 3,) (the rigid modes and
+        :func:`sc_fem.fem.static.lattice_aggregates`); default the 3 translations and pyamg's aggregation.
+
+    Attributes
+    ----------
+    kind : str
+        ``"direct"`` or ``"cg-amg"`` (``"direct"`` after an automatic fallback).
+    reason : str
+        Why (and, after a fallback, the CG failure).
+    stats : dict
+        ``solves``, ``iterations`` (CG, all solves), ``setups`` (AMG), ``factorizations``,
+        ``setup_seconds``, ``fallback`` (the failed CG: residual, iterations; or None), ``floor``
+        (solves accepted at the round-off floor, :data:`ROUNDOFF_FLOOR`).
+    """
+
+    def __init__(self, A: sp.spmatrix, kind: str = "direct", *, reason: str = "", tol: float = 1e-8,
+                 maxiter: int = 500, backend: str = "auto", fallback: str | None = None, hint: str = "",
+                 near_null: np.ndarray | None = None, aggregates: np.ndarray | None = None) -> None:
+        if kind not in ("direct", "cg-amg"):
+            raise InputError(f"kind must be 'direct' or 'cg-amg', got {kind!r}")
+        self.A = sp.csr_matrix(A, dtype=np.float64)
+        n = self.A.shape[0]
+        self.kind, self.reason, self.tol, self.maxiter, self.backend = kind, reason, tol, maxiter, backend
+        self.fallback, self.hint = fallback, hint
+        if near_null is None:
+            near_null = np.kron(np.ones((n // 3, 1)), np.eye(3)) if n % 3 == 0 else np.ones((n, 1))
+        self._null, self._agg = near_null, aggregates
+        self._fac = self._amg = self._product = None
+        self._lagged, self._fresh, self._last = False, None, 0
+        self.stats = {"solves": 0, "iterations": 0, "setups": 0, "factorizations": 0, "setup_seconds": 0.0,
+                      "fallback": None, "floor": 0}
+
+    def update(self, A: sp.spmatrix) -> None:
+        """Solve with ``A`` (same shape) from now on; the direct solve refactorizes at the next solve, CG
+        keeps the current hierarchy as its preconditioner while it works."""
+        self.A = sp.csr_matrix(A, dtype=np.float64)
+        self._fac, self._product, self._lagged = None, None, self._amg is not None
+
+    def _setup(self) -> None:
+        from .multigrid import LatticeAMG
+
+        bs = 3 if self.A.shape[0] % 3 == 0 else 1
+        self._amg = LatticeAMG(self.A, self._null, aggregates=self._agg if bs == 3 else None, blocksize=bs)
+        self._product, self._lagged, self._fresh = self._amg.levels[0], False, None
+        self.stats["setups"] += 1
+        self.stats["setup_seconds"] += self._amg.seconds
+
+    def _direct(self, b: np.ndarray) -> np.ndarray:
+        if self._fac is None:
+            self._fac = factorize(self.A, self.backend)
+            self.stats["factorizations"] += 1
+            self.stats["setup_seconds"] += self._fac.seconds
+        return self._fac.solve(b)
+
+    def _cg(self, b: np.ndarray, x0: np.ndarray | None, maxiter: int) -> tuple[np.ndarray, dict]:
+        from .._jit import blas_single_threaded
+        from .bsr import NodeBlockProduct, node_blocks
+        from .multigrid import pcg
+
+        if self._product is None:
+            self._product = (NodeBlockProduct(node_blocks(self.A), self._amg.kernel) if self.A.shape[0] % 3 == 0
+                             else self.A.__matmul__)
+        with blas_single_threaded():
+            x, info = pcg(self._product, self._amg.vcycle, b, tol=self.tol, maxiter=maxiter, x0=x0)
+        self.stats["iterations"] += info["iterations"]
+        self._last = info["iterations"]
+        if self._fresh is None and not self._lagged:
+            self._fresh = info["iterations"]
+        return x, info
+
+    def solve(self, b: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
+        """``A^-1 b``.
+
+        Parameters
+        ----------
+        b : ndarray, shape (n,)
+            Right-hand side (e.g. a residual force, N).
+        x0 : ndarray, shape (n,), optional
+            CG's start (e.g. the previous step's solution); ignored by the direct solve.
+
+        Returns
+        -------
+        ndarray, shape (n,)
+            The solution (e.g. an acceleration increment, m/s^2), to ``options.tol`` relative
+            residual for CG.
+
+        Raises
+        ------
+        SolverError
+            ``"cg-amg"`` did not reach ``tol`` within ``maxiter`` (naming the residual), or
+            the factorization failed.
+        """
+        b = np.asarray(b, dtype=np.float64)
+        self.stats["solves"] += 1
+        if self.kind == "direct":
+            return self._direct(b)
+        grow, extra = REFRESH_GROWTH
+        if self._amg is None or (self._lagged and self._fresh is not None and self._last > grow * self._fresh + extra):
+            self._setup()
+        x, info = self._cg(b, x0, self.maxiter)
+        if not info["converged"] and self._lagged:            # the old hierarchy no longer does: a new one
+            self._setup()
+            x, more = self._cg(b, x, self.maxiter)
+            info = {**more, "iterations": info["iterations"] + more["iterations"]}
+        if info["converged"]:
+            return x
+        if info["iterations"] < self.maxiter and not info["breakdown"] and info["residual"] <= ROUNDOFF_FLOOR * self.tol:
+            self.stats["floor"] += 1     # the recurrence reached tol (3 times), the true residual cannot: round-off
+            return x
+        why = " (a non-positive curvature: the matrix is not positive definite)" if info["breakdown"] else ""
+        msg = (f"CG + AMG did not converge on the {self.A.shape[0]:,}-DOF system: relative residual "
+               f"{info['residual']:.3g} > tol {self.tol:g} after {info['iterations']} iterations{why}")
+        if self.fallback is None:
+            raise SolverError(f"{msg}; {self.hint}" if self.hint else msg)
+        self.stats["fallback"] = {"residual": info["residual"], "iterations": info["iterations"]}
+        self.kind, self.reason = "direct", f"{self.reason}; {msg}: {self.fallback}"
+        self._amg = self._product = None
+        return self._direct(b)

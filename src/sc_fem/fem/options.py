@@ -270,3 +270,127 @@ def choose_static_solver(n: int, nnz: int, solver: str = "auto", *, lattice: boo
         return "cg-amg", (f"the factorization would need ~{need / 2**20:,.0f} MiB > budget "
                           f"{budget / 2**20:,.0f} MiB: CG + AMG")
     return "direct", f"{n:,} DOFs < {CG_AMG_MIN_DOFS:,}: direct"
+
+
+DYNAMIC_CG_MIN_DOFS = 100_000
+"""The implicit integrators' ``solver="auto"`` (:class:`DynamicOptions`) solves their effective
+matrices by CG + AMG from this many free DOFs on, by a sparse Cholesky factorization below. Far
+higher than :data:`CG_AMG_MIN_DOFS`: one factorization serves every step of a linear run, and a
+back-solve costs a tenth of a step's CG (~20 iterations to the default tol). Measured
+(``benchmarks/newmark_speed.py``, 60 steps of the clamped bunny, CHOLMOD on the reference BLAS,
+2 shared cores, 2026-11-25): 30,171 DOFs direct 16.9 s (45 ms/step) vs CG + AMG 34.2 s
+(518 ms/step); 90,036 DOFs (r48) direct 167 s (102 s factorizing, 283 ms/step) vs 143 s
+(2.3 s/step): CG wins there for runs below ~70 steps, and by more as the factorization grows
+(~n^2) faster than the steps (~n); its memory is the other reason (a factorization over budget is
+never chosen)."""
+
+DYNAMIC_CG_ITERATIONS = 100
+"""``solver="auto"``: a step's CG that has not converged in this many iterations (after one
+re-setup of the AMG on the current matrix) is replaced by the direct solve for the rest of the run,
+when the factorization fits in memory."""
+
+
+@dataclass(frozen=True)
+class DynamicOptions(StaticOptions):
+    """How the implicit integrators (:class:`~sc_fem.dynamics.newmark.Newmark`, its corotational and
+    IPC variants) solve their effective matrices ``S x = r`` every step
+    (:class:`sc_fem.fem.linsolve.SystemSolver`): the fields of :class:`StaticOptions`.
+
+    Parameters
+    ----------
+    solver : {"auto", "direct", "cg-amg"}
+        ``"auto"`` (:func:`choose_dynamic_solver`): CG + AMG from :data:`DYNAMIC_CG_MIN_DOFS` free
+        DOFs on, else direct; and direct for the rest of the run when a CG solve has not converged
+        within :data:`DYNAMIC_CG_ITERATIONS` iterations and the factorization fits in memory.
+    backend : {"auto", "cholmod", "cholespy", "splu"}
+        Factorization backend of the direct solve.
+    tol : float
+        CG stops at ``||S x - r|| <= tol ||r||`` (``r`` a step's residual force). Default 1e-12,
+        tighter than the static solve's: on the chair at r16 (thin members, near-static steps)
+        Newmark ended 100 steps of 5 ms 2.6e-4 / 3.9e-6 / 2.4e-7 / 1.4e-8 (relative) off the direct
+        trajectory with 1e-8 / 1e-10 / 1e-11 / 1e-12, at 44 / 58 / 66 / 71 CG iterations per step
+        (``tests/test_dynamics_iterative.py`` holds every model it runs to 1e-6 over 1 s).
+    maxiter : int
+        Largest number of CG iterations of ``"cg-amg"``; beyond it :class:`~sc_fem.SolverError`.
+    max_memory : float, optional
+        Bytes a (fallback) factorization may use; default half the available memory.
+    """
+
+    tol: float = 1e-12
+
+    @classmethod
+    def coerce(cls, value: "DynamicOptions | str | None") -> "DynamicOptions":
+        """``None`` (defaults), a DynamicOptions, or a solver name (``"cg-amg"``).
+
+        Parameters
+        ----------
+        value : DynamicOptions, str or None
+            The options, a solver name (the ``solver`` field) or ``None`` for the defaults.
+
+        Returns
+        -------
+        DynamicOptions
+            ``value`` itself when it is one, else new options.
+        """
+        return _coerce(cls, value, "solver")
+
+    def solver_for(self, A, *, near_null=None, aggregates=None):
+        """The :class:`~sc_fem.fem.linsolve.SystemSolver` of ``A`` these options choose
+        (:func:`choose_dynamic_solver`; ``"auto"``: CG limited to :data:`DYNAMIC_CG_ITERATIONS`, then
+        direct for good if the factorization fits in memory).
+
+        Parameters
+        ----------
+        A : scipy.sparse matrix, shape (n, n)
+            Symmetric positive definite (e.g. an effective matrix, kg).
+        near_null, aggregates : ndarray, optional
+            The AMG's near-null space (n, k) and finest aggregates (n // 3,).
+
+        Returns
+        -------
+        SystemSolver
+        """
+        from .linsolve import SystemSolver
+
+        n, nnz = A.shape[0], A.nnz
+        kind, reason = choose_dynamic_solver(n, nnz, self.solver, max_memory=self.max_memory)
+        need, budget = factor_memory_estimate(n, nnz), memory_budget(self.max_memory)
+        auto = self.solver == "auto"
+        fallback = "solved directly from then on" if auto and need <= budget else None
+        hint = ("use solver='direct' (or 'auto' to fall back to it), or raise maxiter / tol (DynamicOptions)"
+                if not auto else f"the direct solve would need ~{need / 2**30:.1f} GiB > budget "
+                f"{budget / 2**30:.1f} GiB")
+        return SystemSolver(A, kind, reason=reason, tol=self.tol, backend=self.backend, fallback=fallback,
+                            hint=hint, maxiter=min(self.maxiter, DYNAMIC_CG_ITERATIONS) if auto else self.maxiter,
+                            near_null=near_null, aggregates=aggregates)
+
+
+def choose_dynamic_solver(n: int, nnz: int, solver: str = "auto", *, max_memory: float | None = None
+                          ) -> tuple[str, str]:
+    """``("direct" | "cg-amg", reason)`` for the effective matrix (``n`` free DOFs, ``nnz`` nonzeros)
+    of an implicit time integration: :func:`choose_static_solver` with the threshold
+    :data:`DYNAMIC_CG_MIN_DOFS`.
+
+    Parameters
+    ----------
+    n, nnz : int
+        Size and nonzeros of the effective matrix.
+    solver : {"auto", "direct", "cg-amg"}
+        A requested solver is returned as it is.
+    max_memory : float, optional
+        Budget in bytes (default half the available memory).
+
+    Returns
+    -------
+    solver : str
+    reason : str
+    """
+    if solver != "auto":
+        return solver, "requested"
+    if n >= DYNAMIC_CG_MIN_DOFS:
+        return "cg-amg", f"{n:,} DOFs >= {DYNAMIC_CG_MIN_DOFS:,}: CG + AMG"
+    need, budget = factor_memory_estimate(n, nnz), memory_budget(max_memory)
+    if need > budget:
+        return "cg-amg", (f"the factorization would need ~{need / 2**20:,.0f} MiB > budget "
+                          f"{budget / 2**20:,.0f} MiB: CG + AMG")
+    return "direct", f"{n:,} DOFs < {DYNAMIC_CG_MIN_DOFS:,}: direct"
