@@ -355,50 +355,29 @@ ANIMATION_OUTPUTS = (".npz", ".xdmf", ".mp4", ".gif")
 """Extensions :func:`write_animation` writes."""
 
 
-def write_xdmf(path, rest: np.ndarray, faces: np.ndarray, times, positions) -> Path:
+def write_xdmf(path: str | Path, rest: np.ndarray, faces: np.ndarray, times: ArrayLike, positions: ArrayLike, *,
+               model: Any = None, node_displacements: ArrayLike | None = None, element: str | None = None) -> Path:
     """XDMF time series for ParaView: the rest mesh and point data ``displacement`` (model units)
     per time, the arrays in an HDF5 file beside it (``NAME.h5``; inline XML of a large run is more
-    than VTK's XML reader takes). Both files appear together or not at all."""
-    import os
-    import shutil
-    import tempfile
+    than VTK's XML reader takes); with ``model`` and ``node_displacements`` (T, m, 3) in metres,
+    the cube lattice too, in ``NAME_lattice.xdmf`` (:func:`sc_fem.io.paraview.write_xdmf_series`).
+    All files appear together or not at all. Returns the surface series' path."""
+    from .paraview import write_xdmf_series
 
-    import meshio
+    return write_xdmf_series(path, rest, faces, times, positions, model=model,
+                             node_displacements=node_displacements, element=element)[0]
 
-    from ..errors import OutputError
 
-    path = Path(path)
-    cells = [("triangle", np.asarray(faces, dtype=np.int64))] if len(faces) else \
-        [("vertex", np.arange(len(rest), dtype=np.int64)[:, None])]
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmpdir = Path(tempfile.mkdtemp(prefix=f".{path.stem}.", dir=path.parent))
-    except OSError as exc:
-        raise OutputError(f"cannot write {path}: {exc}") from None
-    try:
-        cwd = os.getcwd()
-        os.chdir(tmpdir)                      # meshio names the .h5 after the .xdmf, relative to it
-        try:
-            with meshio.xdmf.TimeSeriesWriter(path.name, data_format="HDF") as w:
-                w.write_points_cells(np.asarray(rest, dtype=float), cells)
-                for t, p in zip(times, positions):         # loop over frames
-                    w.write_data(float(t), point_data={"displacement": np.asarray(p, dtype=float) - rest})
-        finally:
-            os.chdir(cwd)
-        h5 = path.with_suffix(".h5")
-        os.replace(tmpdir / h5.name, h5)
-        os.replace(tmpdir / path.name, path)
-    except OSError as exc:
-        raise OutputError(f"cannot write {path}: {exc}") from None
-    finally:
-        shutil.rmtree(tmpdir, ignore_errors=True)
-    return path
+def keeps_lattice(rec: Any) -> bool:
+    """Whether a recording kept the node displacements of every frame (its lattice is written)."""
+    return len(rec.u) == len(rec.times)
 
 
 def write_animation(path, scene, rec, *, exaggerate: float = 1.0, fps: float = 50.0, title: str = "",
                     progress: bool = False) -> Path:
     """Write a recorded run of ``scene`` by the extension of ``path``: ``.npz`` (:func:`save_animation`,
-    with ``rec.info`` as its record), ``.xdmf`` (ParaView time series), ``.mp4`` / ``.gif`` (rendered,
+    with ``rec.info`` as its record), ``.xdmf`` (ParaView time series, and the lattice's in
+    ``NAME_lattice.xdmf`` when ``rec`` kept the node displacements), ``.mp4`` / ``.gif`` (rendered,
     displacements times ``exaggerate``)."""
     path = Path(path)
     kind = path.suffix.lower()
@@ -409,9 +388,11 @@ def write_animation(path, scene, rec, *, exaggerate: float = 1.0, fps: float = 5
         meta = {k: v for k, v in rec.info.items() if k != "warnings"}
         return save_animation(path, faces=faces, rest_vertices=rest, times=rec.times, positions=rec.points,
                               energy=rec.energy, meta=meta,
-                              extra=lattice_arrays(scene, rec.u) if len(rec.u) == len(rec.times) else None)
-    if kind == ".xdmf":
-        return write_xdmf(path, rest, faces, rec.times, rec.points)
+                              extra=lattice_arrays(scene, rec.u) if keeps_lattice(rec) else None)
+    if kind == ".xdmf":                    # the lattice beside it: NAME_lattice.xdmf (sc_fem.io.paraview)
+        lattice = {"model": scene.model, "node_displacements": rec.u,
+                   "element": rec.info.get("element")} if keeps_lattice(rec) else {}
+        return write_xdmf(path, rest, faces, rec.times, rec.points, **lattice)
     from .render import render_animation
 
     from ..dynamics.contact import obstacles_from

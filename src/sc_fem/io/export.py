@@ -1,7 +1,8 @@
 """Exporting a mode file or an animation for other programs (``sc-fem export``): glTF 2.0 for engines,
 Blender and the browser (:func:`sc_fem.io.gltf.export_gltf`), OpenUSD for VFX tools
-(:func:`sc_fem.io.usd.export_usd`), or the mode shapes as ``.vtu`` for ParaView
-(:func:`sc_fem.io.modes.save_modes_vtu`). :data:`EXPORT_FORMATS` is the one list of what is written."""
+(:func:`sc_fem.io.usd.export_usd`), or the mode shapes as ``.vtu`` or ``.vtkhdf`` for ParaView
+(:func:`sc_fem.io.modes.save_modes_vtu`, :func:`sc_fem.io.paraview.save_modes_vtkhdf`).
+:data:`EXPORT_FORMATS` is the one list of what is written."""
 
 from __future__ import annotations
 
@@ -13,10 +14,12 @@ from typing import Any, Sequence
 from ..errors import InputError, ScFemWarning
 from .report import JobResult
 
-EXPORT_FORMATS = {".glb": "gltf", ".gltf": "gltf", ".usd": "usd", ".usda": "usd", ".usdc": "usd", ".vtu": "vtu"}
+EXPORT_FORMATS = {".glb": "gltf", ".gltf": "gltf", ".usd": "usd", ".usda": "usd", ".usdc": "usd", ".vtu": "vtu",
+                  ".vtkhdf": "vtkhdf"}
 """Output suffix -> writer (``sc-fem export -o``): ``gltf`` (:func:`sc_fem.io.gltf.export_gltf`),
 ``usd`` (:func:`sc_fem.io.usd.export_usd`, needs ``usd-core``: ``pip install 'sc_fem[usd]'``),
-``vtu`` (:func:`sc_fem.io.modes.save_modes_vtu`, mode files only)."""
+``vtu`` (:func:`sc_fem.io.modes.save_modes_vtu`, mode files only), ``vtkhdf`` (the same content as
+VTKHDF, :func:`sc_fem.io.paraview.save_modes_vtkhdf`, mode files only)."""
 
 
 def _sig_floor(x: float, digits: int = 3) -> float:
@@ -49,7 +52,8 @@ def export_to_file(source: Any, output: str | Path, *, amplitude: float | None =
                    duration: float | None = None, fps: float | None = None, up: str = "z",
                    mesh: Any = None, quantize: bool = False) -> JobResult:
     """Write a mode file or a vertex animation as glTF 2.0 (``.glb``/``.gltf``), OpenUSD
-    (``.usd``/``.usda``/``.usdc``), or a mode file's shapes as ``.vtu`` (one point array per mode).
+    (``.usd``/``.usda``/``.usdc``), or a mode file's shapes as ``.vtu`` / ``.vtkhdf`` (one point
+    array per mode).
 
     Parameters
     ----------
@@ -57,8 +61,8 @@ def export_to_file(source: Any, output: str | Path, *, amplitude: float | None =
         A mode file (glTF: two morph targets per mode; USD: one blend shape per mode) or an
         animation (glTF: one morph target per frame; USD: time-sampled points).
     output : str or Path
-        ``.glb``, ``.gltf``, ``.usd``, ``.usda``, ``.usdc`` or ``.vtu`` (a mode file only, without
-        a baked playback); see :data:`EXPORT_FORMATS`.
+        ``.glb``, ``.gltf``, ``.usd``, ``.usda``, ``.usdc``, or ``.vtu`` / ``.vtkhdf`` (a mode file
+        only, without a baked playback); see :data:`EXPORT_FORMATS`.
     amplitude : float, optional
         Largest vertex displacement of a mode at weight 1 (and of ``mode`` when released), as a
         fraction of the bounding-box diagonal (default 0.05, as ``sc-fem play`` and ``view``).
@@ -93,7 +97,7 @@ def export_to_file(source: Any, output: str | Path, *, amplitude: float | None =
     ------
     InputError
         An output suffix not in :data:`EXPORT_FORMATS`, options the format does not take
-        (``quantize`` outside glTF, a baked playback as ``.vtu``), or an animation longer than glTF
+        (``quantize`` outside glTF, a baked playback as ``.vtu`` / ``.vtkhdf``), or an animation longer than glTF
         takes (the message names the ``--fps`` / ``--duration`` that fit).
     ScFemError
         USD output without ``usd-core`` installed (the message says what to install).
@@ -118,16 +122,17 @@ def export_to_file(source: Any, output: str | Path, *, amplitude: float | None =
         _pxr()                                     # a missing usd-core is said before any work
     data = _load(source)
     amplitude = DEFAULT_AMPLITUDE if amplitude is None else amplitude
-    if writer == "vtu":
+    if writer in ("vtu", "vtkhdf"):
         from ..modes.basis import ModalBasis
         from .modes import save_modes_vtu
+        from .paraview import save_modes_vtkhdf
 
         if not isinstance(data, ModalBasis):
-            raise InputError(f"{source}: only a mode file can be written as .vtu (an animation: "
+            raise InputError(f"{source}: only a mode file can be written as .{writer} (an animation: "
                              "sc-fem simulate -o run.xdmf)")
         if impulse is not None or mode is not None:
-            raise InputError(".vtu holds the mode shapes; --impulse/--mode bake a playback (glTF or USD)")
-        path = save_modes_vtu(data, output)
+            raise InputError(f".{writer} holds the mode shapes; --impulse/--mode bake a playback (glTF or USD)")
+        path = (save_modes_vtu if writer == "vtu" else save_modes_vtkhdf)(data, output)
         text = (f"wrote {path} ({path.stat().st_size / 1024:.0f} KiB): point arrays mode_K, field data "
                 "frequency_Hz, damping_ratio")
         return JobResult(written=[path], result=data, text=text)

@@ -112,32 +112,27 @@ def save_modes(basis: ModalBasis, path: str | Path) -> Path:
     return save_npz_atomic(path, **arrays)
 
 
-def save_modes_vtu(basis: ModalBasis, path) -> Path:
+def save_modes_vtu(basis: ModalBasis, path: str | Path) -> Path:
     """Write ``basis`` for ParaView as a ``.vtu`` (atomically): the mesh (points in model units,
     its triangles, or vertex cells for a point set) with one point array per mode, ``mode_K``
     (n, 3) in m kg^-1/2 (mass-normalized; in ParaView: Warp By Vector with a scale factor), and the
     field data ``frequency_Hz`` (k,), ``damping_ratio`` (k,), ``rigid`` (k,) and ``scale`` (metres
-    per model unit). Returns the path."""
+    per model unit); :func:`sc_fem.io.paraview.save_modes_vtkhdf` writes the same as VTKHDF.
+    Returns the path."""
     import pyvista as pv
 
     from .._atomic import atomic_path
+    from .paraview import modes_content
 
     path = Path(path)
     if path.suffix.lower() != ".vtu":
         raise InputError(f"{path.name}: a ParaView mode file must end in .vtu")
-    faces = np.asarray(basis.faces, dtype=np.int64).reshape(-1, 3)
-    points = np.asarray(basis.vertices, dtype=np.float64)
-    if len(faces):
-        grid = pv.UnstructuredGrid({pv.CellType.TRIANGLE: faces}, points)
-    else:
-        grid = pv.UnstructuredGrid({pv.CellType.VERTEX: np.arange(len(points))[:, None]}, points)
-    width = len(str(max(basis.n_modes - 1, 0)))
-    for k in range(basis.n_modes):                    # one array per mode (a handful), not per vertex
-        grid.point_data[f"mode_{k:0{width}d}"] = np.asarray(basis.modes[k], dtype=np.float32)
-    grid.field_data["frequency_Hz"] = np.asarray(basis.frequencies, dtype=np.float64)
-    grid.field_data["damping_ratio"] = np.asarray(basis.damping, dtype=np.float64)
-    grid.field_data["rigid"] = np.asarray(basis.rigid, dtype=np.int8)
-    grid.field_data["scale"] = np.array([basis.scale], dtype=np.float64)
+    points, cells, cell_type, point_data, field_data = modes_content(basis)   # as the .vtkhdf
+    grid = pv.UnstructuredGrid({pv.CellType(cell_type): cells}, points)
+    for name, arr in point_data.items():
+        grid.point_data[name] = arr
+    for name, arr in field_data.items():
+        grid.field_data[name] = arr
     with atomic_path(path, suffix=".vtu") as tmp:
         grid.save(str(tmp))
     return path

@@ -79,8 +79,9 @@ def simulate_to_file(mesh: Any, output: str | Path, *, duration: float, fps: flo
     ----------
     mesh : path, ``"builtin:NAME"`` or anything :func:`sc_fem.load_mesh` takes
     output : str or Path
-        ``.npz`` (:func:`sc_fem.io.animation.save_animation`), ``.xdmf`` (ParaView) or a rendered
-        ``.mp4`` / ``.gif``.
+        ``.npz`` (:func:`sc_fem.io.animation.save_animation`), ``.xdmf`` (ParaView; with the cube
+        lattice and its strain energy density in ``NAME_lattice.xdmf`` beside it,
+        :mod:`sc_fem.io.paraview`) or a rendered ``.mp4`` / ``.gif``.
     duration : float
         Simulated time, s.
     fps : float
@@ -103,7 +104,8 @@ def simulate_to_file(mesh: Any, output: str | Path, *, duration: float, fps: flo
     -------
     JobResult
         ``result`` the :class:`~sc_fem.dynamics.Recording`; the summary is the model's
-        (:func:`sc_fem.io.voxelize.model_summary`), the run's (:func:`run_summary`) and the file written.
+        (:func:`sc_fem.io.voxelize.model_summary`), the run's (:func:`run_summary`) and the files
+        written (``written``: the output, then the lattice series of an ``.xdmf`` when written).
 
     Warns
     -----
@@ -112,7 +114,8 @@ def simulate_to_file(mesh: Any, output: str | Path, *, duration: float, fps: flo
     """
     from ..dynamics.job import run_simulation
     from ..scene import Scene
-    from .animation import write_animation
+    from .animation import keeps_lattice, write_animation
+    from .paraview import lattice_xdmf_path
     from .voxelize import model_summary
 
     timings: dict = {}
@@ -124,5 +127,9 @@ def simulate_to_file(mesh: Any, output: str | Path, *, duration: float, fps: flo
         path = write_animation(output, scene, rec, exaggerate=exaggerate, fps=fps, progress=progress)
     for w in rec.info["warnings"]:
         warnings.warn(w, ScFemWarning, stacklevel=2)
-    return JobResult(written=[path], result=rec,
-                     text=f"{model_summary(scene.model)}\n{run_summary(rec)}\nwrote {Path(output)}")
+    written, wrote = [path], f"wrote {Path(output)}"
+    if Path(path).suffix.lower() == ".xdmf" and keeps_lattice(rec):
+        written.append(lattice_xdmf_path(path))
+        wrote += f" and {written[1]} (the cube lattice: displacement, strain_energy_density per cube, J/m^3)"
+    return JobResult(written=written, result=rec,
+                     text=f"{model_summary(scene.model)}\n{run_summary(rec)}\n{wrote}")
