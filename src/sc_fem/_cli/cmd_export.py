@@ -1,4 +1,4 @@
-"""``sc-fem export`` (glTF 2.0 for engines, Blender and the browser; OpenUSD; .vtu) and ``sc-fem view`` (one
+"""``sc-fem export`` (glTF 2.0 for engines, Blender and the browser; OpenUSD; .vtu, .vtkhdf) and ``sc-fem view`` (one
 HTML page that plays the modes in real time)."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from .common import add_amplitude_arg, add_impulse_arg, add_quiet, add_up_arg, c
 
 def register(sub) -> None:
     p = command(sub, "export", run_export, outputs=tuple(EXPORT_FORMATS),
-                help="write modes or an animation as glTF 2.0 (.glb/.gltf), OpenUSD (.usd/.usda/.usdc) or .vtu",
+                help="write modes or an animation as glTF 2.0 (.glb/.gltf), OpenUSD (.usd/.usda/.usdc) or .vtu/.vtkhdf",
                 description="glTF 2.0: +Y up (--up turned onto it), metres, a dielectric material, normals; two morph "
                             "targets per mode (+mode, -mode: weights in [0, 1]; scales, frequencies, damping in "
                             "meshes[0].extras), a baked playback (--impulse, --mode) as a weights animation, an "
@@ -18,7 +18,7 @@ def register(sub) -> None:
                             "a playback as weight time samples, an animation as time-sampled points.")
     p.add_argument("source", metavar="FILE", help="mode file or animation file (.npz)")
     p.add_argument("-o", "--output", required=True, help="output .glb (or .gltf); .usd/.usda/.usdc: OpenUSD (usdview, "
-                   "Blender, Houdini); .vtu: the mode shapes for ParaView (one point array per mode)")
+                   "Blender, Houdini); .vtu, .vtkhdf: the mode shapes for ParaView (one point array per mode)")
     add_amplitude_arg(p, "of a mode at weight 1 (--mode: at its release)")
     g = p.add_mutually_exclusive_group()
     add_impulse_arg(g, "bake the exact response to an impulse (N s) on a source vertex")
