@@ -134,7 +134,7 @@ def bench_cantilevers(sizes, k, limits):
 
 
 def bench_models(cases, k):
-    from sc_fem.modes.modal import modal
+    from sc_fem import modal
     from sc_fem.geometry.mesh import load_mesh
     from sc_fem.lattice.voxelize import voxelize
 

@@ -10,7 +10,7 @@ from sc_fem.io.batch import expand_inputs, output_name, run_batch
 from sc_fem.errors import InputError
 from sc_fem.io.modes import load_modes
 
-OPTS = {"resolution": 10, "n_modes": 3, "fix": ["default"]}
+OPTS = {"voxel": {"resolution": 10}, "n_modes": 3, "fix": ["default"]}
 
 
 def test_one_broken_mesh_fails_alone(tmp_path):
@@ -67,7 +67,7 @@ def test_one_fix_spec_as_a_string(tmp_path):
     """``fix`` as one spec string (as modal takes it): it was split into single characters."""
     from sc_fem.io.batch import precompute_one
 
-    row = precompute_one("builtin:beam", str(tmp_path / "b.npz"), {"fix": "x<min+0.01", "n_modes": 2, "resolution": 8})
+    row = precompute_one("builtin:beam", str(tmp_path / "b.npz"), {"fix": "x<min+0.01", "n_modes": 2, "voxel": {"resolution": 8}})
     assert row["status"] == "ok", row["error"]
     row = precompute_one("/nonexistent/x.obj", str(tmp_path / "x.npz"), {"fix": ["default"], "n_modes": 2})
     assert row["status"] == "error" and "not found" in row["error"]

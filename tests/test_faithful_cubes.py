@@ -264,15 +264,15 @@ def test_thin_cantilever_one_cube_thick_bends_like_a_beam():
 # ---------------------------------------------------------------- 7. automatic resolution
 @pytest.mark.slow
 def test_auto_resolution_converges_on_the_chair_and_settles_on_the_bridge():
-    chair = sc_fem.modal("builtin:chair", resolution="auto", n_modes=4, fix="z<min+0.01")
+    chair = sc_fem.modal_converged("builtin:chair", n_modes=4, fix="z<min+0.01")
     table = chair.resolution_table
     chosen = [r for r in table if r["chosen"]][0]
     assert table[0]["converged"] and chosen["resolution"] <= 24          # was: never, r = 64 chosen
     assert chosen["max_rel_change"] <= 0.05
     # the bridge's lowest modes are its cables bending, thinner than a cube up to resolution 64:
     # measured changes between grids 44 % (64 -> 96), then 1.5 % (96 -> 128), so auto settles on 96
-    bridge = sc_fem.modal("builtin:bridge", n_modes=4, fix="z<min+0.05",
-                          resolution=sc_fem.AutoResolution((64, 96, 128), tolerance=0.05))
+    bridge = sc_fem.modal_converged("builtin:bridge", sc_fem.AutoResolution((64, 96, 128), tolerance=0.05),
+                                    n_modes=4, fix="z<min+0.05")
     assert bridge.resolution_table[0]["converged"] and bridge.resolution == 96
     changes = [r["max_rel_change"] for r in bridge.resolution_table if r["max_rel_change"] is not None]
     assert changes[-1] < 0.05 and changes[-1] < changes[0]

@@ -199,7 +199,7 @@ def test_ctrl_c_during_a_serial_batch(tmp_path, monkeypatch):
     monkeypatch.setattr(batch, "precompute_one", one)
     with pytest.raises(batch.BatchInterrupted) as info:
         batch.run_batch(["builtin:beam", "builtin:rope"], tmp_path / "o", progress=False,
-                        options={"resolution": 4, "n_modes": 2, "fix": ["x<min+0.01"]})
+                        options={"voxel": {"resolution": 4}, "n_modes": 2, "fix": ["x<min+0.01"]})
     assert info.value.completed == [tmp_path / "o" / "beam.modes.npz"] and info.value.n_meshes == 2
     assert isinstance(info.value, KeyboardInterrupt) and info.value.summary.is_file()
 
@@ -259,7 +259,7 @@ def test_sigint_to_a_batch_on_worker_processes_prints_one_line_and_no_traceback(
 def damaged(tmp_path_factory):
     """A mode file and an animation, each cut in half, and a file that is not a zip archive."""
     from sc_fem.io.modes import save_modes
-    from sc_fem.modes.modal import modal
+    from sc_fem import modal
 
     d = tmp_path_factory.mktemp("damaged")
     modes = save_modes(modal("builtin:beam", resolution=4, n_modes=2, fix=["x<min+0.01"]), d / "m.npz")

@@ -14,7 +14,8 @@ from sc_fem.fem.linsolve import available_backends
 from sc_fem.lattice.voxelize import voxelize
 from sc_fem.fem.eigen import EigenOptions
 from sc_fem.lattice.options import VoxelOptions
-from sc_fem.modes.modal import modal
+from sc_fem import modal
+from sc_fem.modes.auto import modal_converged
 from sc_fem.modes.options import AutoResolution, Damping
 
 
@@ -191,8 +192,8 @@ def test_resolution_auto_picks_the_coarsest_converged_grid(monkeypatch):
     embed_fn = embed.embedding
     monkeypatch.setattr(embed, "embedding", lambda model, pts: baked.append(model.n_cubes) or embed_fn(model, pts))
     grids = (10, 20, 30, 40)
-    b = modal("builtin:beam", resolution=AutoResolution(grids, tolerance=1e-3), n_modes=2,
-              fix="x<min+1e-6", voxel=VoxelOptions(fill="solid"))
+    b = modal_converged("builtin:beam", AutoResolution(grids, tolerance=1e-3), n_modes=2,
+                        fix="x<min+1e-6", voxel=VoxelOptions(fill="solid"))
     table = b.resolution_table
     assert [r["resolution"] for r in table] == list(grids[:len(table)])
     chosen = [i for i, r in enumerate(table) if r["chosen"]]
@@ -205,8 +206,8 @@ def test_resolution_auto_picks_the_coarsest_converged_grid(monkeypatch):
     assert i < len(table) - 1 and baked == [table[i]["cubes"]]    # only the chosen grid is baked
     assert table[i]["max_rel_change"] <= 1e-3 and all(r["max_rel_change"] > 1e-3 for r in table[:i])
     # a tolerance no grid meets: the finest grid is used and the table says so
-    strict = modal("builtin:beam", resolution=AutoResolution((10, 20, 30), tolerance=1e-9), n_modes=2,
-                   fix="x<min+1e-6", voxel={"fill": "solid"})
+    strict = modal_converged("builtin:beam", AutoResolution((10, 20, 30), tolerance=1e-9), n_modes=2,
+                             fix="x<min+1e-6", voxel={"fill": "solid"})
     assert strict.resolution == 30 and not strict.eigen["auto_converged"]
     # the chosen frequencies agree with the Euler-Bernoulli cantilever (1 x 0.1 x 0.1 m steel) within 1 %
     f_eb = 1.875104069**2 / (2 * np.pi) * np.sqrt(200e9 * 0.1**4 / 12 / (7850 * 0.01 * 1.0))
@@ -252,6 +253,12 @@ def test_bad_arguments_raise_clear_errors():
         modal(m, max_frequency=-1.0)
     with pytest.raises(InputError, match="fix_vertices"):
         modal(m, fix_vertices=[0])
+    from sc_fem.modes.modal import modal as modal_of_scene     # the solver itself takes a Scene only
+
+    with pytest.raises(InputError, match=r"takes a Scene.*sc_fem\.modal\(source"):
+        modal_of_scene(m, n_modes=2)
+    with pytest.raises(InputError, match="modal_converged"):
+        modal("builtin:beam", resolution="auto")
 
 
 def test_auto_method_picks_the_solver_predicted_faster_here():
@@ -296,8 +303,8 @@ def test_grouped_options():
     omega = 2 * np.pi * damped.frequencies
     np.testing.assert_allclose(damped.damping, 0.5 * (0.5 / omega + 1e-4 * omega), rtol=1e-12)
     # the 6 -> 8 change is 0.4 %: the default tolerance (5 %) would pick 6, this one cannot converge
-    new = modal("builtin:beam", resolution=AutoResolution((6, 8), tolerance=1e-9), n_modes=2,
-                fix="x<min+1e-6", voxel=VoxelOptions(fill="solid", youngs=2e9))
+    new = modal_converged("builtin:beam", AutoResolution((6, 8), tolerance=1e-9), n_modes=2,
+                          fix="x<min+1e-6", voxel=VoxelOptions(fill="solid", youngs=2e9))
     assert new.resolution == 8 and not new.resolution_table[0]["converged"]
     np.testing.assert_allclose(new.material["youngs"], [2e9, 2e9], rtol=1e-12)
     with pytest.raises(TypeError, match="n_mode"):

@@ -11,7 +11,7 @@ import pytest
 import sc_fem
 from sc_fem.errors import FileFormatError
 from sc_fem.lattice.cubes import CubeModel
-from sc_fem.modes.modal import modal
+from sc_fem import modal
 from sc_fem.modes.options import Damping
 from sc_fem.io.modes import MODES_FORMAT_VERSION, load_modes, save_modes
 

@@ -12,7 +12,7 @@ from sc_fem.dynamics import make_integrator, record, simulate
 from sc_fem.dynamics.loads import Gravity, LoadSet
 from sc_fem.dynamics.newmark import Newmark
 from sc_fem.lattice.cubes import CubeModel
-from sc_fem.fem.static import solve_static
+from sc_fem import solve_static
 
 G = (0.0, 0.0, -9.81)
 

@@ -8,7 +8,7 @@ from scipy.integrate import solve_ivp
 
 from sc_fem.errors import InputError
 from sc_fem.lattice.cubes import CubeModel
-from sc_fem.modes.modal import modal
+from sc_fem import modal
 from sc_fem.modes.player import ModalPlayer, transition
 
 

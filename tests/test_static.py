@@ -12,7 +12,7 @@ from sc_fem.lattice.boundary import fixed_dofs, fixed_nodes
 from sc_fem.errors import InputError, SolverError
 from sc_fem.lattice.cubes import CubeModel
 from sc_fem.fem.linsolve import available_backends, factorize
-from sc_fem.fem.static import solve_static
+from sc_fem import solve_static
 
 # steel cantilever L = 1 m, 0.1 x 0.1 m, clamped at x = 0; converged 3-D answers (27-node
 # elements extrapolated to zero size): first frequency and tip deflection under 1 kN

@@ -15,7 +15,7 @@ from sc_fem.fem.bsr import node_blocks
 from sc_fem.fem.multigrid import LatticeAMG, pcg
 from sc_fem.fem.options import CG_AMG_MIN_DOFS, StaticOptions, choose_static_solver
 from sc_fem.fem.rigid import rigid_body_modes
-from sc_fem.fem.static import solve_static
+from sc_fem import solve_static
 from sc_fem.lattice.boundary import fixed_dofs, fixed_nodes
 from sc_fem.lattice.cubes import CubeModel
 

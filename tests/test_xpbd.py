@@ -10,7 +10,7 @@ import pytest
 
 from sc_fem.errors import BoundaryConditionError, InputError, InstabilityError, ScFemError
 from sc_fem.lattice.cubes import HEX_CORNERS, CubeModel
-from sc_fem.fem.static import solve_static
+from sc_fem import solve_static
 from sc_fem.dynamics.xpbd import XPBDSolver, simulate_xpbd
 from sc_fem.dynamics.xpbd_kernels import cube_colors
 from sc_fem.dynamics import xpbd_jit

@@ -23,9 +23,10 @@ if TYPE_CHECKING:
 class Scene:
     """Source mesh + :class:`~sc_fem.CubeModel` + embedding + fixed nodes.
 
-    Build it with :meth:`from_mesh` (voxelizes) or :meth:`from_model` (an existing lattice);
-    :func:`sc_fem.modal`, :func:`sc_fem.solve_static`, :func:`sc_fem.dynamics.run_simulation`
-    and the XPBD recorder take it.
+    Build it with :meth:`from_mesh` (voxelizes) or :meth:`from_model` (an existing lattice), or
+    :meth:`coerce` (either, from what a convenience was given); the solvers
+    (:func:`sc_fem.modes.modal.modal`, :func:`sc_fem.fem.static.solve_static`,
+    :func:`sc_fem.dynamics.run_simulation`, the XPBD recorder) take it.
 
     Attributes
     ----------
@@ -73,11 +74,65 @@ class Scene:
             The loaded mesh, its voxelized lattice and the fixed nodes.
         """
         from .geometry.mesh import load_mesh
+        from .lattice.options import VoxelOptions
         from .lattice.voxelize import voxelize
 
+        options = VoxelOptions.coerce(options)
+        given = options.changed()
+        clash = [f"{k}={v!r}" for k, v in fields.items() if k in given and not _same(given[k], v)]
+        if clash:
+            raise InputError(f"{', '.join(clash)} contradicts the voxel options {options!r}: give each once")
         mesh = load_mesh(source)
         model = voxelize(mesh, options, **fields)
         return cls.from_model(model, mesh, fix=fix, fix_vertices=fix_vertices)
+
+    @classmethod
+    def coerce(cls, source: Any, options: Any = None, *, mesh: Any = None, fix: Iterable[Fix] | Fix | None = None,
+               fix_vertices: ArrayLike | None = None, **fields: Any) -> "Scene":
+        """A Scene from what a solver's convenience was given: a Scene (as it is), a
+        :class:`~sc_fem.CubeModel` (:meth:`from_model`) or a mesh (:meth:`from_mesh`).
+
+        Parameters
+        ----------
+        source : Scene, CubeModel, path, ``"builtin:NAME"``, trimesh.Trimesh or (vertices, faces)
+            What to build the scene from.
+        options : VoxelOptions or dict, optional
+            How a mesh is voxelized (not with a Scene or a CubeModel: they have their grid).
+        mesh : mesh-like or ndarray, shape (n, 3), optional
+            The source mesh or points of interest of a CubeModel (model units).
+        fix : str, FixSpec, callable or list, optional
+            Fixed nodes (:func:`sc_fem.fixed_nodes`); not with a Scene (it has its own).
+        fix_vertices : array_like of int, optional
+            Source vertices whose cubes are fixed; not with a Scene.
+        **fields
+            Fields of :class:`~sc_fem.lattice.options.VoxelOptions` (``resolution``, ``youngs``, ...)
+            for a mesh.
+
+        Returns
+        -------
+        Scene
+            ``source`` itself, or the scene built from it.
+
+        Raises
+        ------
+        InputError
+            An argument that ``source`` already settles (a Scene's fixed nodes and mesh, a
+            lattice's grid), or ``mesh`` beside a mesh ``source``.
+        """
+        grid = [k for k, v in {"voxel": options, **fields}.items() if v is not None]
+        if isinstance(source, Scene):
+            given = grid + [k for k, v in (("mesh", mesh), ("fix", fix), ("fix_vertices", fix_vertices)) if v is not None]
+            if given:
+                raise InputError(f"a Scene already has its grid, fixed nodes and mesh: do not pass {', '.join(given)}")
+            return source
+        if isinstance(source, CubeModel):
+            if grid:
+                raise InputError(f"a CubeModel already has its grid: do not pass {', '.join(grid)} "
+                                 "(pass the mesh as the source to voxelize it)")
+            return cls.from_model(source, mesh, fix=fix, fix_vertices=fix_vertices)
+        if mesh is not None:
+            raise InputError("mesh= goes with a CubeModel; a mesh to voxelize is the source itself")
+        return cls.from_mesh(source, options, fix=fix, fix_vertices=fix_vertices, **fields)
 
     @classmethod
     def from_model(cls, model: CubeModel, mesh: Any = None, *, fix: Iterable[Fix] | Fix | None = None,
@@ -267,6 +322,11 @@ class Scene:
     def __repr__(self) -> str:
         return (f"Scene({self.source or 'lattice'}: {self.model.n_cubes} cubes, "
                 f"{self.rest_vertices.shape[0]} vertices, {len(self.fixed_nodes)} fixed nodes)")
+
+
+def _same(a: Any, b: Any) -> bool:
+    """One option value given twice: the same object, or equal numbers or names."""
+    return a is b or (isinstance(a, (str, int, float)) and isinstance(b, (str, int, float)) and a == b)
 
 
 def _source(mesh: Any):

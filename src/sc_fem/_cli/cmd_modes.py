@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-from ..errors import InputError
 from .common import (add_amplitude_arg, add_element_arg, add_fix_args, add_grid_args, add_impulse_arg,
                      add_material_args, add_mesh_arg, add_quiet, add_up_arg, command, finish, fix_options,
-                     impulse_arg, voxel_options)
+                     grid_options, impulse_arg)
 
 
 def register(sub) -> None:
@@ -72,26 +71,17 @@ def register(sub) -> None:
     add_quiet(s)
 
 
-def _modal_options(args) -> dict:
-    """Keyword arguments of :func:`sc_fem.modal` from the command line (option objects built once here)."""
-    from ..fem.options import EigenOptions
-    from ..modes.options import AutoResolution, Damping, parse_resolution
-
-    voxel = voxel_options(args)                        # holds --resolution N; "auto" is resolution=
-    resolution = parse_resolution(args.resolution) if voxel.resolution is None else None
-    if args.tolerance is not None and not isinstance(resolution, AutoResolution):
-        raise InputError("--tolerance applies to --resolution auto only")
-    resolution = resolution if args.tolerance is None else AutoResolution(tolerance=args.tolerance)
-    return dict(resolution=resolution, voxel=voxel, n_modes=args.modes, max_frequency=args.max_frequency,
-                element=args.element, lumped=args.lumped, keep_rigid=args.keep_rigid, keep_lattice=args.keep_lattice,
-                damping=Damping(ratio=args.damping, rayleigh=args.rayleigh),     # neither: the default ratio
-                eigen=EigenOptions(solver=args.eigensolver, backend=args.backend), **fix_options(args))
-
-
 def run_precompute(args) -> int:
+    from ..fem.options import EigenOptions
     from ..io.precompute import precompute_modes
+    from ..modes.options import Damping
 
-    return finish(args, precompute_modes(args.mesh, args.output, _modal_options(args), scheduler=args.scheduler,
+    voxel, auto = grid_options(args)                   # --resolution N is voxel's; auto: the grids to try
+    options = dict(voxel=voxel, auto=auto, **fix_options(args), n_modes=args.modes, max_frequency=args.max_frequency,
+                   element=args.element, lumped=args.lumped, keep_rigid=args.keep_rigid, keep_lattice=args.keep_lattice,
+                   damping=Damping(ratio=args.damping, rayleigh=args.rayleigh),     # neither: the default ratio
+                   eigen=EigenOptions(solver=args.eigensolver, backend=args.backend))
+    return finish(args, precompute_modes(args.mesh, args.output, options, scheduler=args.scheduler,
                                          n_workers=args.workers, verbose=not args.quiet))
 
 

@@ -79,17 +79,28 @@ def add_material_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mass", type=float, default=None, help="total mass in kg (overrides density)")
 
 
-def voxel_options(args):
-    """The :class:`sc_fem.VoxelOptions` of the grid/material options of ``args`` (``--resolution``
-    only when it is a number: ``auto`` is the modal command's business)."""
+def grid_options(args: argparse.Namespace) -> tuple:
+    """``(VoxelOptions, AutoResolution or None)`` of the grid/material options of ``args``: the one
+    place ``--resolution`` is read (a number, or ``auto`` with ``--tolerance`` for the modal command)."""
     from ..lattice.options import VoxelOptions
-    from ..modes.options import AutoResolution, parse_resolution
+    from ..modes.options import AutoResolution
 
-    res = parse_resolution(getattr(args, "resolution", None))      # a bad value is an error here
+    res, tol = getattr(args, "resolution", None), getattr(args, "tolerance", None)
+    auto = isinstance(res, str) and res.strip().lower() == "auto"
+    if isinstance(res, str) and not auto and not res.strip().lstrip("-").isdigit():
+        raise InputError(f"resolution must be an integer or 'auto', got {res!r}")
+    res = int(res) if isinstance(res, str) and not auto else res
+    if tol is not None and not auto:
+        raise InputError("--tolerance applies to --resolution auto only")
     same = ("pitch", "scale", "fill", "occupancy", "keep", "topology", "weld", "shell_thickness", "stiffness",
             "youngs", "poisson", "density", "mass")              # VoxelOptions' fields spelled as the options
-    return VoxelOptions(resolution=None if isinstance(res, AutoResolution) else res,
-                        **{k: getattr(args, k) for k in same})
+    voxel = VoxelOptions(resolution=None if auto else res, **{k: getattr(args, k) for k in same})
+    return voxel, (AutoResolution(**({} if tol is None else {"tolerance": tol})) if auto else None)
+
+
+def voxel_options(args: argparse.Namespace):
+    """The :class:`sc_fem.VoxelOptions` of the grid/material options of ``args`` (:func:`grid_options`)."""
+    return grid_options(args)[0]
 
 
 def add_fix_args(p: argparse.ArgumentParser) -> None:

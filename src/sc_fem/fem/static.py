@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Any, Iterable
 
 import numpy as np
 import scipy.sparse as sp
@@ -34,12 +33,9 @@ from .elements import DEFAULT_ELEMENT, check_element
 from .highorder import DEGREES, HighOrderAssembler, HighOrderCubes
 from ..errors import BoundaryConditionError, InputError, SolverError
 from ..lattice.cubes import CubeModel
+from ..scene import Scene
 from .linsolve import factorize
 from .options import StaticOptions, choose_static_solver
-
-if TYPE_CHECKING:
-    from ..lattice.boundary import Fix
-    from ..scene import Scene
 
 
 @dataclass(frozen=True, eq=False)
@@ -124,36 +120,27 @@ def held_parts(model: CubeModel, labels: np.ndarray, fixed: np.ndarray, n_parts:
     return ev[:, 0] > 1e-9 * np.maximum(ev[:, -1], 1e-300)
 
 
-def solve_static(model: CubeModel | Scene, *, element: str = DEFAULT_ELEMENT,
-                 fix: Iterable[Fix] | Fix | None = None, fix_vertices: ArrayLike | None = None,
-                 forces: ArrayLike | None = None, gravity: ArrayLike | None = None,
-                 point_forces: ArrayLike | None = None, points: ArrayLike | None = None, mesh: Any = None,
-                 backend: str = "auto", solver: StaticOptions | str | None = None) -> StaticResult:
-    """Static displacement of a cube lattice under load.
+def solve_static(scene: Scene, *, element: str = DEFAULT_ELEMENT, forces: ArrayLike | None = None,
+                 gravity: ArrayLike | None = None, point_forces: ArrayLike | None = None, backend: str = "auto",
+                 solver: StaticOptions | str | None = None) -> StaticResult:
+    """Static displacement of a scene's cube lattice under load.
 
     Parameters
     ----------
-    model : CubeModel or Scene
-        The lattice, or a :class:`~sc_fem.Scene` (then its fixed nodes and source mesh are used and
-        ``fix``, ``fix_vertices``, ``points`` and ``mesh`` are not given).
+    scene : Scene
+        Lattice, fixed nodes and source mesh (or points of interest) together
+        (:meth:`~sc_fem.Scene.from_mesh`, :meth:`~sc_fem.Scene.from_model`);
+        :func:`sc_fem.solve_static` builds one from a CubeModel or a mesh.
     element : {"q1i", "q1", "q1sri", "q2", "q3"}
         Element type (default ``"q1i"``); ``"q2"`` / ``"q3"``: degree-2 / 3 cubes
         (:mod:`sc_fem.fem.highorder`, need the source mesh), loaded consistently (gravity through
         their mass, point forces through their field).
-    fix : str, FixSpec, callable or list of them, optional
-        Fixed nodes (see :func:`sc_fem.lattice.boundary.fixed_nodes`), e.g. ``["x<0.01"]``.
-    fix_vertices : array_like of int, optional
-        Indices of source-mesh vertices (of ``mesh``, or of ``points``) whose cubes are fixed.
     forces : array_like, shape (m, 3), optional
         Forces on the lattice nodes, N.
     gravity : array_like, shape (3,), optional
         Gravitational acceleration, m/s^2 (e.g. ``(0, 0, -9.81)``); uses ``model.mass``.
     point_forces : array_like, shape (k, 3), optional
-        Forces on ``points`` (or on the vertices of ``mesh``), N; mapped with ``W^T``.
-    points : array_like, shape (k, 3), optional
-        Points in model units (e.g. source-mesh vertices); their displacements are returned.
-    mesh : trimesh.Trimesh or anything :func:`sc_fem.load_mesh` accepts, optional
-        Source mesh; its vertices are used as ``points`` when ``points`` is not given.
+        Forces on the scene's source vertices (or points), N; mapped with ``W^T``.
     backend : {"auto", "cholmod", "cholespy", "splu"}
         Sparse factorization backend of the direct solve (also ``StaticOptions.backend``).
     solver : StaticOptions or {"auto", "direct", "cg-amg"}, optional
@@ -164,40 +151,28 @@ def solve_static(model: CubeModel | Scene, *, element: str = DEFAULT_ELEMENT,
     Returns
     -------
     StaticResult
-        Node displacements (m), the displacements of ``points`` / the mesh vertices (m), the
-        applied forces (N), the residual and timings.
+        Node displacements (m), the displacements of the scene's source vertices (m; None when
+        the scene has no mesh), the applied forces (N), the residual and timings.
 
     Raises
     ------
+    InputError
+        ``scene`` is no Scene, or a bad load.
     SolverError
         A loaded part of the model is not held in place (floating), the factorization fails, or
         CG does not reach ``tol`` within ``maxiter`` iterations (``"cg-amg"``; ``"auto"`` solves
         directly when CG has not converged within
         :data:`~sc_fem.fem.options.AUTO_CG_ITERATIONS` and the factorization fits in memory).
-    BoundaryConditionError
-        A fix spec selects no node or cannot be parsed.
     """
-    from ..scene import Scene
-
+    if not isinstance(scene, Scene):
+        raise InputError(f"sc_fem.fem.static.solve_static takes a Scene, got {type(scene).__name__}: build one "
+                         "with Scene.from_model / Scene.from_mesh, or call sc_fem.solve_static(model, ...), which does")
     opts = StaticOptions.coerce(solver)
     if backend != "auto":
         if opts.backend not in ("auto", backend):
             raise InputError(f"backend={backend!r} and solver.backend={opts.backend!r} disagree")
         opts = replace(opts, backend=backend)
-    if isinstance(model, Scene):
-        given = [k for k, v in (("fix", fix), ("fix_vertices", fix_vertices), ("points", points), ("mesh", mesh))
-                 if v is not None]
-        if given:
-            raise InputError(f"a Scene already has its fixed nodes and mesh: do not pass {', '.join(given)}")
-        scene, report_points = model, True
-    else:
-        if not isinstance(model, CubeModel):
-            raise InputError(f"model must be a CubeModel or a Scene, got {type(model).__name__}")
-        source = points if points is not None else mesh
-        if fix_vertices is not None and source is None:
-            raise BoundaryConditionError("fix_vertices needs mesh= or points= (the vertex positions)")
-        scene = Scene.from_model(model, source, fix=fix, fix_vertices=fix_vertices)
-        report_points = source is not None
+    report_points = scene.mesh is not None
     model = scene.model
     higher = isinstance(element, str) and element.lower() in DEGREES
     element = element.lower() if higher else check_element(element)
@@ -211,7 +186,7 @@ def solve_static(model: CubeModel | Scene, *, element: str = DEFAULT_ELEMENT,
     pf = None
     if point_forces is not None:
         if W is None:
-            raise InputError("point_forces needs points= (or mesh=) to say where the forces act")
+            raise InputError("point_forces needs a scene with a mesh or points (where the forces act)")
         pf = as_float_array(point_forces, "point_forces", (W.shape[0], 3))
     f_corners = f.copy()                              # point forces at the cube corners only
     if g is not None:

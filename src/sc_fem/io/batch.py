@@ -194,6 +194,39 @@ def output_name(mesh: str) -> str:
     return f"{stem}.modes.npz"
 
 
+def mesh_modes(mesh: Any, *, voxel: Any = None, auto: Any = None, fix: Any = None, fix_vertices: Any = None,
+               **request: Any) -> Any:
+    """The modes of one mesh, as a job's ``options`` describe them (these keywords).
+
+    Parameters
+    ----------
+    mesh : path, ``"builtin:NAME"`` or mesh-like
+        The source mesh.
+    voxel : VoxelOptions or dict, optional
+        How it is voxelized; its ``resolution`` is the grid (cubes along the longest axis).
+    auto : AutoResolution, optional
+        Choose the grid instead: :func:`sc_fem.modes.auto.modal_converged` over these resolutions.
+    fix : str, FixSpec, callable or list, optional
+        Fixed nodes; ``"default"`` = a built-in model's supports.
+    fix_vertices : array_like of int, optional
+        Source vertices whose cubes are fixed.
+    **request
+        The keywords of :func:`sc_fem.modes.modal.modal` (``n_modes``, ``damping``, ...).
+
+    Returns
+    -------
+    ModalBasis
+        The modes (Hz, m kg^-1/2) baked onto the mesh.
+    """
+    from ..modes.auto import modal_converged
+    from ..modes.modal import modal
+    from ..scene import Scene
+
+    if auto is not None:
+        return modal_converged(mesh, auto, voxel=voxel, fix=fix, fix_vertices=fix_vertices, **request)
+    return modal(Scene.from_mesh(mesh, voxel, fix=fix, fix_vertices=fix_vertices), **request)
+
+
 def precompute_one(mesh: str, output: str, options: dict) -> dict:
     """Compute and save the modes of one mesh; never raises (errors go in the returned row).
 
@@ -204,17 +237,15 @@ def precompute_one(mesh: str, output: str, options: dict) -> dict:
     output : str
         Mode file to write.
     options : dict
-        Keyword arguments of :func:`sc_fem.modes.modal.modal`; a ``"default"`` entry of ``fix`` is
-        replaced by the built-in model's supports (:func:`sc_fem.geometry.models.expand_fix`).
+        Keyword arguments of :func:`mesh_modes` (``voxel``, ``auto``, ``fix``, ``n_modes``, ...).
     """
     t0 = time.perf_counter()
     row: dict[str, Any] = {k: "" for k in SUMMARY_FIELDS}
     row.update(mesh=mesh, output=output)
     try:
-        from ..modes.modal import modal
         from .modes import save_modes
 
-        basis = modal(mesh, **dict(options))             # modal loads the mesh (once) and expands "default"
+        basis = mesh_modes(mesh, **dict(options))
         save_modes(basis, output)
         f = basis.frequencies[~basis.rigid]
         row.update(status="ok", cubes=basis.n_cubes, dofs=basis.n_dofs, n_modes=basis.n_modes,
@@ -255,7 +286,7 @@ def run_batch(meshes: Iterable[str], out_dir: str | Path, *, options: dict | Non
     out_dir : str or Path
         Folder for ``NAME.modes.npz`` files and ``summary.csv`` (created).
     options : dict, optional
-        Keyword arguments for :func:`sc_fem.modes.modal.modal` (``resolution``, ``n_modes``, ``fix``, ...).
+        Keyword arguments of :func:`mesh_modes` (``voxel``, ``auto``, ``fix``, ``n_modes``, ...).
     scheduler : str, optional
         Address of a running ``dask.distributed`` scheduler; default: start a LocalCluster.
     n_workers : int, optional

@@ -76,12 +76,14 @@ def demo_modal(out: str | Path, *, resolution: int = 24, n_modes: int = 8) -> li
     from ..geometry import models
     from ..modes.modal import modal
     from ..modes.player import ModalPlayer
+    from ..scene import Scene
     from .modes import save_modes
     from .render import modes_sheet, render_animation
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    basis = modal("builtin:chair", resolution=resolution, n_modes=n_modes, fix=list(models.fix_specs("chair")))
+    basis = modal(Scene.from_mesh("builtin:chair", resolution=resolution, fix=list(models.fix_specs("chair"))),
+                  n_modes=n_modes)
     say(f"chair modes: {basis.n_cubes} cubes, f = " + ", ".join(f"{f:.3g}" for f in basis.frequencies) + " Hz")
     written = [save_modes(basis, out / "chair.modes.npz"),
                modes_sheet(basis, out / "chair_modes_sheet.png", n_modes=6)]

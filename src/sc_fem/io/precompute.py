@@ -1,7 +1,8 @@
 """Precompute vibration modes into mode files: one mesh, or many on Dask (``sc-fem precompute-modes``).
 
-:func:`precompute_modes` runs :func:`sc_fem.modes.modal.modal` and writes the mode file, or hands
-several meshes to :func:`sc_fem.io.batch.run_batch`; :func:`precompute_summary` describes the result.
+:func:`precompute_modes` runs :func:`sc_fem.io.batch.mesh_modes` (the modes at a grid, or the coarsest
+converged one) and writes the mode file, or hands several meshes to :func:`sc_fem.io.batch.run_batch`;
+:func:`precompute_summary` describes the result.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from ..errors import InputError, ScFemWarning
-from .batch import BatchResult, expand_inputs, run_batch
+from .batch import BatchResult, expand_inputs, mesh_modes, run_batch
 from .report import JobResult, stage, table
 
 
@@ -67,7 +68,7 @@ def precompute_modes(meshes: Iterable[str], output: str | Path, options: dict | 
                      verbose: bool = False) -> JobResult:
     """Compute the vibration modes of one mesh, or of many on Dask, and write the mode files.
 
-    One mesh and a file ``output``: :func:`sc_fem.modes.modal.modal`, then the mode file
+    One mesh and a file ``output``: :func:`sc_fem.io.batch.mesh_modes`, then the mode file
     (``.npz``, :func:`sc_fem.io.modes.save_modes`). Several meshes, or a folder ``output``
     (existing, or ending in ``/``), or a ``scheduler``: :func:`run_batch` (``FOLDER/NAME.modes.npz``
     and ``FOLDER/summary.csv``).
@@ -79,8 +80,8 @@ def precompute_modes(meshes: Iterable[str], output: str | Path, options: dict | 
     output : str or Path
         The mode file (``.npz``) of one mesh, or a folder.
     options : dict, optional
-        Keyword arguments of :func:`sc_fem.modes.modal.modal` (``resolution``, ``n_modes``, ``voxel``,
-        ``fix``, ``damping``, ``eigen``, ...).
+        Keyword arguments of :func:`sc_fem.io.batch.mesh_modes` (``voxel``, ``auto``, ``fix``,
+        ``n_modes``, ``damping``, ``eigen``, ...).
     scheduler : str, optional
         Address of a running ``dask.distributed`` scheduler (a batch).
     n_workers : int, optional
@@ -93,7 +94,7 @@ def precompute_modes(meshes: Iterable[str], output: str | Path, options: dict | 
     -------
     JobResult
         One mesh: ``result`` the :class:`~sc_fem.ModalBasis`, the summary the resolution search
-        (``resolution="auto"``), :func:`precompute_summary` and the file written. A batch:
+        (``auto``), :func:`precompute_summary` and the file written. A batch:
         ``result`` the :class:`BatchResult`, a line per mesh and a total; not ``ok`` when a mesh
         failed.
 
@@ -103,7 +104,6 @@ def precompute_modes(meshes: Iterable[str], output: str | Path, options: dict | 
         Ctrl-C during a batch (see :func:`run_batch`).
     """
     from ..modes.auto import format_resolution_table
-    from ..modes.modal import modal
     from .modes import save_modes
 
     meshes = expand_inputs(meshes)
@@ -117,7 +117,7 @@ def precompute_modes(meshes: Iterable[str], output: str | Path, options: dict | 
         raise InputError(f"the mode file must end in .npz, got {out.name!r} (give a folder ending in / for a batch)")
     timings: dict = {}
     with stage("load + voxelize + modes", timings, verbose):
-        basis = modal(meshes[0], progress=verbose, **dict(options or {}))   # modal loads the mesh (and times it)
+        basis = mesh_modes(meshes[0], progress=verbose, **dict(options or {}))
     with stage("write", timings, verbose):
         save_modes(basis, out)
     if basis.eigen.get("truncated"):

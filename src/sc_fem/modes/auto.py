@@ -1,15 +1,18 @@
-"""``resolution="auto"``: the coarsest grid whose first frequencies agree with the next finer grid.
+"""The coarsest grid whose first frequencies agree with the next finer grid: :func:`modal_converged`.
 
-A model no bigger than the scene needs: grids are solved coarsest first, only the last two are
-kept in memory, and only the chosen one is baked; the table the choice was made from is returned
-in :attr:`sc_fem.ModalBasis.resolution_table`.
+A model no bigger than the scene needs, one level above :func:`sc_fem.modes.modal.modal`: scenes
+are built from the mesh at increasing resolutions (:class:`~sc_fem.modes.options.AutoResolution`)
+and solved coarsest first, only the last two are kept in memory, and only the chosen one is baked;
+the table the choice was made from is returned in :attr:`sc_fem.ModalBasis.resolution_table`.
 """
 
 from __future__ import annotations
 
 import time
+from typing import TYPE_CHECKING, Any, Iterable
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..errors import InputError
 from ..lattice.options import VoxelOptions
@@ -19,20 +22,60 @@ from .options import AutoResolution, ModalRequest
 from .._log import say
 from .solve import finish, solve_scene
 
+if TYPE_CHECKING:
+    from ..lattice.boundary import Fix
 
-def modal_auto(mesh, auto: AutoResolution, voxel: VoxelOptions, req: ModalRequest, *, fix, fix_vertices,
-               timings: dict) -> ModalBasis:
-    """``resolution="auto"``: solve grid after grid of ``auto.resolutions``, keeping only the last
-    two; bake the chosen one. ``voxel`` and ``req`` are :func:`sc_fem.modal`'s other options."""
+
+def modal_converged(source: Any, auto: AutoResolution | None = None, *, voxel: VoxelOptions | dict | None = None,
+                    fix: Iterable[Fix] | Fix | None = None, fix_vertices: ArrayLike | None = None,
+                    **request: Any) -> ModalBasis:
+    """The modes at the coarsest grid of ``auto.resolutions`` whose first frequencies agree with
+    those of the next finer grid within ``auto.tolerance``.
+
+    Parameters
+    ----------
+    source : path, ``"builtin:NAME"``, trimesh.Trimesh or (vertices, faces)
+        The source mesh (anything :func:`sc_fem.load_mesh` accepts), loaded once (by the first grid).
+    auto : AutoResolution, optional
+        Grids tried (cubes along the longest axis) and the relative tolerance of the frequencies
+        compared (the first ``n_modes``, or those below ``max_frequency``); default
+        ``AutoResolution()``.
+    voxel : VoxelOptions or dict, optional
+        How the mesh is voxelized at every grid; without ``resolution`` or ``pitch`` (the grids
+        are ``auto``'s).
+    fix : str, FixSpec, callable or list, optional
+        Fixed nodes (:func:`sc_fem.fixed_nodes`); ``"default"`` = a built-in model's supports.
+    fix_vertices : array_like of int, optional
+        Source-mesh vertex indices whose cubes are fixed.
+    **request
+        The keywords of :func:`sc_fem.modes.modal.modal` (``n_modes``, ``max_frequency``,
+        ``element``, ``damping``, ``eigen``, ``progress``, ...).
+
+    Returns
+    -------
+    ModalBasis
+        The chosen grid's modes (frequencies in Hz, shapes in m kg^-1/2), with the
+        ``resolution_table`` of every grid solved and ``eigen["auto_converged"]``.
+
+    Raises
+    ------
+    InputError
+        ``voxel`` gives a resolution or pitch, or a bad option.
+    """
+    auto = AutoResolution() if auto is None else auto
+    if not isinstance(auto, AutoResolution):
+        raise InputError(f"auto must be an AutoResolution, got {auto!r}")
+    voxel = VoxelOptions.coerce(voxel)
     if voxel.pitch is not None or voxel.resolution is not None:
-        raise InputError("resolution='auto' chooses the grid; do not give a pitch or resolution in the voxel options")
+        raise InputError("modal_converged chooses the grid; do not give a pitch or resolution in the voxel options")
+    req = ModalRequest(**request)
     tol = auto.tolerance
     table: list[dict] = []
     prev = cur = None                                             # solutions of the last two grids
     for r in auto.resolutions:                                    # loop over grids (a handful)
         t0 = time.perf_counter()
-        scene = Scene.from_mesh(mesh, voxel, resolution=r, fix=fix, fix_vertices=fix_vertices)
-        lattice = scene.model
+        scene = Scene.from_mesh(source, voxel.replace(resolution=r), fix=fix, fix_vertices=fix_vertices)
+        source, lattice = scene.mesh, scene.model                 # the mesh is loaded once, by the first grid
         t_vox = time.perf_counter() - t0
         say(f"[auto] resolution {r}: {lattice.n_cubes} cubes, {lattice.n_dofs} DOFs", req.progress)
         prev, cur = cur, None                                     # drop the grid before prev first
@@ -57,7 +100,7 @@ def modal_auto(mesh, auto: AutoResolution, voxel: VoxelOptions, req: ModalReques
     for row in table:
         row["converged"] = converged
     chosen.info.update(auto_tolerance=tol, auto_converged=converged)
-    return finish(chosen, req, timings, resolution_table=table)
+    return finish(chosen, req, {}, resolution_table=table)
 
 
 def format_resolution_table(table: list[dict], n_show: int = 4) -> str:

@@ -1,6 +1,7 @@
-"""The option groups of :func:`sc_fem.modal`: how the modes are damped (:class:`Damping`), how the
-grid is chosen (:class:`AutoResolution`), and the request that travels from :func:`~sc_fem.modal`
-through the solve to the baked :class:`~sc_fem.ModalBasis` (:class:`ModalRequest`)."""
+"""The option groups of :func:`sc_fem.modes.modal.modal`: how the modes are damped (:class:`Damping`),
+the request that travels from :func:`~sc_fem.modes.modal.modal` through the solve to the baked
+:class:`~sc_fem.ModalBasis` (:class:`ModalRequest`), and how
+:func:`~sc_fem.modes.auto.modal_converged` chooses the grid (:class:`AutoResolution`)."""
 
 from __future__ import annotations
 
@@ -20,10 +21,10 @@ DEFAULT_DAMPING_RATIO = 0.01
 """Damping ratio of every mode when no damping is given (1 % of critical)."""
 
 AUTO_RESOLUTIONS: tuple[int, ...] = (12, 16, 24, 32, 48, 64)
-"""Grids tried by ``resolution="auto"`` (cubes along the longest axis), coarsest first."""
+"""Grids tried by :func:`~sc_fem.modes.auto.modal_converged` (cubes along the longest axis), coarsest first."""
 
 DEFAULT_RESOLUTION_TOLERANCE = 0.05
-"""Relative frequency agreement that ``resolution="auto"`` asks for by default."""
+"""Relative frequency agreement that :func:`~sc_fem.modes.auto.modal_converged` asks for by default."""
 
 
 @dataclass(frozen=True)
@@ -121,8 +122,8 @@ class Damping:
 
 @dataclass(frozen=True)
 class AutoResolution:
-    """``resolution="auto"``: the coarsest of ``resolutions`` whose frequencies agree with those
-    of the next finer grid within ``tolerance``.
+    """How :func:`~sc_fem.modes.auto.modal_converged` chooses the grid: the coarsest of
+    ``resolutions`` whose frequencies agree with those of the next finer grid within ``tolerance``.
 
     Parameters
     ----------
@@ -141,23 +142,9 @@ class AutoResolution:
         except TypeError:
             raise InputError(f"resolutions must be a sequence of integers, got {self.resolutions!r}") from None
         if len(grids) < 2:
-            raise InputError(f"resolution='auto' needs at least two positive resolutions, got {list(grids)}")
+            raise InputError(f"AutoResolution needs at least two positive resolutions, got {list(grids)}")
         object.__setattr__(self, "resolutions", grids)
         object.__setattr__(self, "tolerance", positive_scalar(self.tolerance, "tolerance"))
-
-
-def parse_resolution(value: Any) -> int | AutoResolution | None:
-    """``None``, an int (or its string), ``"auto"`` or an :class:`AutoResolution`."""
-    if value is None or isinstance(value, AutoResolution):
-        return value
-    if isinstance(value, str):
-        if value.strip().lower() == "auto":
-            return AutoResolution()
-        try:
-            value = int(value)
-        except ValueError:
-            raise InputError(f"resolution must be an integer or 'auto', got {value!r}") from None
-    return positive_int(value, "resolution")
 
 
 @dataclass(frozen=True)
