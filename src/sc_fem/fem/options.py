@@ -222,7 +222,8 @@ class StaticOptions:
 
     @classmethod
     def coerce(cls, value: StaticOptions | str | None) -> StaticOptions:
-        """``None`` (defaults), a StaticOptions, or a solver name (``"cg-amg"``).
+        """``None`` (defaults), a StaticOptions, or a solver name (``"cg-amg"``); on
+        :class:`DynamicOptions` (which inherits it) the same, giving DynamicOptions.
 
         Parameters
         ----------
@@ -317,22 +318,6 @@ class DynamicOptions(StaticOptions):
     """
 
     tol: float = 1e-12
-
-    @classmethod
-    def coerce(cls, value: "DynamicOptions | str | None") -> "DynamicOptions":
-        """``None`` (defaults), a DynamicOptions, or a solver name (``"cg-amg"``).
-
-        Parameters
-        ----------
-        value : DynamicOptions, str or None
-            The options, a solver name (the ``solver`` field) or ``None`` for the defaults.
-
-        Returns
-        -------
-        DynamicOptions
-            ``value`` itself when it is one, else new options.
-        """
-        return _coerce(cls, value, "solver")
 
     def solver_for(self, A, *, near_null=None, aggregates=None):
         """The :class:`~sc_fem.fem.linsolve.SystemSolver` of ``A`` these options choose
