@@ -197,3 +197,23 @@ def test_solver_options_are_checked():
     with pytest.raises(Exception, match="solver must be a DynamicOptions"):
         DynamicOptions.coerce(3)
     assert DynamicOptions.coerce("cg-amg").solver == "cg-amg"
+
+
+def test_mass_solver_equals_the_factorization_and_falls_back_when_cg_fails(monkeypatch):
+    """The consistent-mass solve of the initial acceleration (CG on the diagonal-scaled mass) equals
+    a factorization's on a model with partial cubes; when CG cannot converge (its iteration limit
+    forced to 2) the fallback factorization takes over and the answer is still exact."""
+    import sc_fem
+    from sc_fem.fem import linsolve
+
+    m = sc_fem.voxelize("builtin:chair", resolution=16)
+    M = sc_fem.Assembler(m, "q1i").mass()
+    b = np.random.default_rng(3).standard_normal(M.shape[0])
+    ref = linsolve.factorize(M).solve(b)
+    ms = linsolve.MassSolver(M, lambda: linsolve.factorize(M))
+    np.testing.assert_allclose(ms.solve(b), ref, rtol=0, atol=1e-10 * np.abs(ref).max())
+    assert ms.stats["iterations"] > 0 and not ms.stats["fallback"]
+    monkeypatch.setitem(linsolve.MASS_CG, "maxiter", 2)
+    ms = linsolve.MassSolver(M, lambda: linsolve.factorize(M))
+    np.testing.assert_allclose(ms.solve(b), ref, rtol=0, atol=1e-10 * np.abs(ref).max())
+    assert ms.stats["fallback"]

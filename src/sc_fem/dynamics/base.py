@@ -5,10 +5,9 @@ The semi-discrete equations of motion on the free DOFs (fixed nodes condensed ou
 
     M a + C v + f_int(u) = f(t),       C = a0 M + a1 K  (Rayleigh damping)
 
-with ``u`` node displacements in metres, ``M`` (kg) the consistent or lumped mass, ``f_int = K u``
-(linear) or the corotational force, ``f(t)`` the loads of a :class:`~sc_fem.dynamics.loads.LoadSet`
-(N). :class:`TimeIntegrator` is what every method shares (XPBD too); :class:`AssembledIntegrator`
-builds ``K``, ``M`` and ``C``, and its subclasses implement :meth:`AssembledIntegrator._advance`.
+with ``u`` node displacements (m), ``M`` the consistent or lumped mass (kg), ``f_int = K u`` or the
+corotational force, ``f(t)`` the loads (N). :class:`TimeIntegrator` is what every method shares (XPBD
+too); :class:`AssembledIntegrator` builds ``K``, ``M``, ``C``; its subclasses implement ``_advance``.
 """
 
 from __future__ import annotations
@@ -28,6 +27,7 @@ from ..fem.elements import DEFAULT_ELEMENT
 from ..errors import BoundaryConditionError, InputError, SolverError
 from ..lattice.cubes import CubeModel
 from ..fem.options import DynamicOptions
+from ..fem.linsolve import MassSolver
 from ..fem.rigid import rigid_body_modes
 from ..fem.static import lattice_aggregates, node_parts
 from .contact import Contact
@@ -361,7 +361,7 @@ class AssembledIntegrator(TimeIntegrator):
         return self.asm.restrict(self.loads.force(t))
 
     def solve_mass(self, r: np.ndarray) -> np.ndarray:
-        """``M^-1 r`` on the free DOFs (the consistent mass's :meth:`_linear_solver` is set up on first use).
+        """``M^-1 r`` on the free DOFs (consistent mass: :class:`~sc_fem.fem.linsolve.MassSolver`).
 
         Parameters
         ----------
@@ -375,8 +375,8 @@ class AssembledIntegrator(TimeIntegrator):
         """
         if self._minv is not None:
             return self._minv * r
-        if self._mass_solver is None:
-            self._mass_solver = self._linear_solver(self.M)
+        if self._mass_solver is None:            # CG on the diagonal-scaled mass; a factorization if it fails
+            self._mass_solver = MassSolver(self.M, lambda: self._linear_solver(self.M))
         return self._mass_solver.solve(r)
 
     def _initial_acceleration(self) -> np.ndarray:

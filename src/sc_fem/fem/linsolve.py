@@ -347,3 +347,66 @@ class SystemSolver:
         self.kind, self.reason = "direct", f"{self.reason}; {msg}: {self.fallback}"
         self._amg = self._product = None
         return self._direct(b)
+
+
+MASS_CG = {"tol": 1e-12, "maxiter": 1000}
+"""Conjugate gradients of :class:`MassSolver`: relative residual reached (that of the dynamic CG
+solves, :class:`~sc_fem.fem.options.DynamicOptions`), and the iterations after which it gives way
+to a factorization. The chair at r16, whose many partial cubes make its diagonal-scaled mass the
+worst conditioned of the built-ins (condition number ~1,000; ~170 at r32), needs ~400."""
+
+
+class MassSolver:
+    """``M^-1 b`` for a consistent mass matrix by conjugate gradients preconditioned by its diagonal.
+
+    A mass matrix is well conditioned once scaled by its diagonal, whatever the model's size: the
+    consistent mass of the bunny at r32 (31,161 DOFs) took 107 iterations to 1e-13, 0.66 s, where
+    its sparse Cholesky factorization took 5.0 s (the chair at r32, with many partial cubes: 190
+    iterations, 0.17 s against 0.12 s; at r16, 400). Should CG not reach :data:`MASS_CG` (e.g. a badly scaled partial cube), ``fallback()``
+    -- a solver with ``.solve(b)``, e.g. a factorization -- takes over for good.
+
+    Parameters
+    ----------
+    M : scipy.sparse matrix, shape (n, n)
+        Symmetric positive definite mass, kg.
+    fallback : callable
+        ``() -> solver`` with ``.solve(b)``, built only when CG fails.
+
+    Attributes
+    ----------
+    stats : dict
+        ``solves``, ``iterations`` (all CG solves) and ``fallback`` (True once the fallback took over).
+    """
+
+    def __init__(self, M: sp.spmatrix, fallback) -> None:
+        self.M = sp.csr_matrix(M, dtype=np.float64)
+        d = self.M.diagonal()
+        if not np.all(d > 0):
+            raise SolverError("the mass matrix has non-positive diagonal entries: no mass on some DOFs")
+        self._dinv, self._fallback, self._direct = 1.0 / d, fallback, None
+        self.stats = {"solves": 0, "iterations": 0, "fallback": False}
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        """``M^-1 b``.
+
+        Parameters
+        ----------
+        b : ndarray, shape (n,)
+            Force, N.
+
+        Returns
+        -------
+        ndarray, shape (n,)
+            Acceleration, m/s^2 (to :data:`MASS_CG` ``tol`` relative residual, or exact by the fallback).
+        """
+        from .multigrid import pcg
+
+        b = np.asarray(b, dtype=np.float64)
+        self.stats["solves"] += 1
+        if self._direct is None:
+            x, info = pcg(self.M.__matmul__, self._dinv.__mul__, b, **MASS_CG)
+            self.stats["iterations"] += info["iterations"]
+            if info["converged"]:
+                return x
+            self._direct, self.stats["fallback"] = self._fallback(), True
+        return self._direct.solve(b)
