@@ -6,8 +6,8 @@ Methods (one module each; all step a :class:`~sc_fem.dynamics.state.State` and a
 ==================  ======================================================================
 ``"newmark"``       :class:`~sc_fem.dynamics.newmark.Newmark` -- implicit Newmark-beta
                     (average acceleration by default; ``gamma > 1/2`` or HHT ``alpha`` for
-                    numerical damping), Rayleigh damping; linear: one factorization, one
-                    back-solve per step.
+                    numerical damping), Rayleigh damping; linear: one factorization and a
+                    back-solve per step, or CG + AMG on large models (``solver=``).
 ``"corotational"``  :class:`~sc_fem.dynamics.corotational.Corotational` -- the same scheme on
                     the corotational (warped-stiffness) model for large rotations.
 ``"central"``       :class:`~sc_fem.dynamics.central.CentralDifference` -- explicit central
