@@ -55,6 +55,7 @@ from _common import OUT, print_table, save_figure  # noqa: E402
 
 import sc_fem  # noqa: E402
 from sc_fem.dynamics.job import run_simulation  # noqa: E402
+from sc_fem.units import gravity_down  # noqa: E402
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 MODELS = ("chair", "bridge")
@@ -116,7 +117,7 @@ def cost_case(name: str, r: int, failures: list) -> dict:
     # (a) ipc drop onto the ground
     with ccd_timer() as calls:
         t0, c0 = time.perf_counter(), time.process_time()
-        rec = attempt(f"ipc {name} r{r}", lambda: run_simulation(scene, duration=DURATION, gravity=True,
+        rec = attempt(f"ipc {name} r{r}", lambda: run_simulation(scene, duration=DURATION, gravity=gravity_down(),
                                                                  ground=ground, fps=FPS), failures)
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     if rec is not None:
@@ -137,12 +138,12 @@ def cost_case(name: str, r: int, failures: list) -> dict:
 
     # (b) linear newmark, same dt, no contact
     rec = attempt(f"newmark {name} r{r}", lambda: run_simulation(scene, duration=DURATION, dt=row["ipc_dt"],
-                                                                 method="newmark", gravity=True, fps=FPS), failures)
+                                                                 method="newmark", gravity=gravity_down(), fps=FPS), failures)
     row["newmark_ms"] = 1e3 * rec.seconds_per_step if rec is not None else nan
     row["newmark_run_s"] = rec.seconds if rec is not None else nan
     row["newmark_setup_s"] = rec.setup_seconds if rec is not None else nan
     rec1 = attempt(f"newmark 1 step {name} r{r}", lambda: run_simulation(
-        scene, duration=row["ipc_dt"], dt=row["ipc_dt"], method="newmark", gravity=True, fps=FPS), failures)
+        scene, duration=row["ipc_dt"], dt=row["ipc_dt"], method="newmark", gravity=gravity_down(), fps=FPS), failures)
     if rec is not None and rec1 is not None:
         row["newmark_first_s"] = rec1.seconds
         row["newmark_steady_ms"] = 1e3 * (rec.seconds - rec1.seconds) / (rec.n_steps - rec1.n_steps)
@@ -151,7 +152,7 @@ def cost_case(name: str, r: int, failures: list) -> dict:
 
     # (c) explicit central differences at 0.9 dt_crit, 0.02 s of it
     rec = attempt(f"central {name} r{r}", lambda: run_simulation(scene, duration=CENTRAL_RUN, method="central",
-                                                                 gravity=True, fps=FPS), failures)
+                                                                 gravity=gravity_down(), fps=FPS), failures)
     if rec is not None:
         row.update(central_ms=1e3 * rec.seconds_per_step, central_dt=rec.dt, dt_crit=rec.info["dt_crit"],
                    central_steps_05=int(round(DURATION / rec.dt)))
@@ -174,7 +175,7 @@ def energy_runs(failures: list) -> dict:
     out = {"ground": zmin - 0.1, "scale": scene.model.scale}
     for mu in (0.0, 0.5):
         t0 = time.perf_counter()
-        rec = attempt(f"energy drop mu={mu}", lambda: run_simulation(scene, duration=1.0, gravity=True,
+        rec = attempt(f"energy drop mu={mu}", lambda: run_simulation(scene, duration=1.0, gravity=gravity_down(),
                                                                      ground=zmin - 0.1, friction=mu, dt=0.5 / FPS,
                                                                      velocity=(THROW, 0.0, 0.0),
                                                                      fps=2 * FPS),   # every step recorded
@@ -276,9 +277,9 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     warm = sc_fem.Scene.from_mesh("builtin:chair", resolution=8)
     zmin, h = lowest(warm)
-    run_simulation(warm, duration=0.02, gravity=True, ground=zmin - 0.05 * h, fps=FPS)
-    run_simulation(warm, duration=0.02, method="newmark", gravity=True, fps=FPS)
-    run_simulation(warm, duration=0.02, method="central", gravity=True, fps=FPS)
+    run_simulation(warm, duration=0.02, gravity=gravity_down(), ground=zmin - 0.05 * h, fps=FPS)
+    run_simulation(warm, duration=0.02, method="newmark", gravity=gravity_down(), fps=FPS)
+    run_simulation(warm, duration=0.02, method="central", gravity=gravity_down(), fps=FPS)
     print(f"warm-up {time.perf_counter() - t0:.1f} s")
 
     rows = []

@@ -26,6 +26,7 @@ from sc_fem.dynamics.contact import Ground
 from sc_fem.dynamics.job import run_simulation
 from sc_fem.geometry.mesh import load_mesh
 from sc_fem.io.render import render_animation
+from sc_fem.units import gravity_down
 
 HERE = Path(__file__).resolve().parent
 
@@ -60,7 +61,7 @@ def main(argv=None) -> int:
     chair = load_mesh("builtin:chair")
     scene = Scene.from_mesh(chair, resolution=24)
     g = float(scene.rest_vertices[:, 2].min()) - 0.1
-    rec = run_simulation(scene, duration=0.6, gravity=True, ground=g)
+    rec = run_simulation(scene, duration=0.6, gravity=gravity_down(), ground=g)
     strip(rec, scene.faces, [Ground(g)], args.out / "contact_drop.png",
           f"chair dropped 10 cm (ipc, r24): {rec.info['newton_iterations']} Newton its, {rec.seconds:.1f} s")
 
@@ -69,14 +70,14 @@ def main(argv=None) -> int:
     both = trimesh.util.concatenate([chair, top])
     scene = Scene.from_mesh(both, resolution=32, keep="all")
     g = float(scene.rest_vertices[:, 2].min()) - 0.02
-    rec = run_simulation(scene, duration=0.8, gravity=True, ground=g)
+    rec = run_simulation(scene, duration=0.8, gravity=gravity_down(), ground=g)
     strip(rec, scene.faces, [Ground(g)], args.out / "contact_stack.png",
           f"a chair dropped on a chair ({rec.info['bodies']} bodies, r32), {rec.seconds:.1f} s")
 
     scene = Scene.from_mesh(u_shape(), resolution=32, youngs=1e7, density=1000.0, fill="solid",
                             fix=["x<min+0.04", "z<min+0.04"])
     for on, name in ((True, "contact_self.png"), (False, "contact_self_off.png")):
-        rec = run_simulation(scene, method="ipc", duration=0.6, gravity=True, self_contact=on, friction=0.0)
+        rec = run_simulation(scene, method="ipc", duration=0.6, gravity=gravity_down(), self_contact=on, friction=0.0)
         strip(rec, scene.faces, [], args.out / name,
               f"soft U, self-contact {'on' if on else 'off'} (r32), {rec.seconds:.1f} s")
     print(f"total {time.perf_counter() - t0:.0f} s")

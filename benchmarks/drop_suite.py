@@ -171,6 +171,7 @@ def run_case(name: str, placement: str, resolution: int) -> dict:
 
     from sc_fem import Scene
     from sc_fem.dynamics.job import run_simulation, up_axis
+    from sc_fem.units import gravity_down
 
     t0 = time.perf_counter()
     p = PLACEMENTS[placement]
@@ -185,7 +186,7 @@ def run_case(name: str, placement: str, resolution: int) -> dict:
     mass = float(scene.model.total_mass)
     potential = mass * G * GAP * h * scale
     t_setup = time.perf_counter() - t0
-    rec = run_simulation(scene, duration=DURATION, gravity=True, ground=ground, up=up)
+    rec = run_simulation(scene, duration=DURATION, gravity=gravity_down(up), ground=ground, up=up)
     wall = time.perf_counter() - t0
 
     info = rec.info

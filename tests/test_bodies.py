@@ -13,6 +13,7 @@ from sc_fem.fem.assemble import assemble
 from sc_fem.geometry.bodies import find_bodies, triangle_distance
 from sc_fem.geometry.inside import mesh_parts
 from sc_fem.lattice.embed import embedding
+from sc_fem.units import gravity_down
 
 
 # ------------------------------------------------------------------ the distance kernel
@@ -242,7 +243,7 @@ def test_xpbd_sags_the_two_cantilever_plates_alike():
     scene = _plates_scene(fix="x<min+0.01")
     v = scene.rest_vertices
     top = v[:, 2] > 0.5 * v[:, 2].max()
-    d = np.asarray(run_simulation(scene, duration=0.1, method="xpbd", gravity=True).points)[-1] - v
+    d = np.asarray(run_simulation(scene, duration=0.1, method="xpbd", gravity=gravity_down()).points)[-1] - v
     # mirror images in one layer of cubes, each clamped at its own edge: the same sag
     assert d[top, 2].min() < -0.01
     assert d[top, 2].min() == pytest.approx(d[~top, 2].min(), rel=0.02)
@@ -254,7 +255,7 @@ def test_ipc_drops_one_plate_onto_the_other_without_passing_through():
     scene = _plates_scene()
     v = scene.rest_vertices
     top = v[:, 2] > 0.5 * v[:, 2].max()
-    rec = run_simulation(scene, duration=0.3, method="ipc", gravity=True, ground=-0.001,
+    rec = run_simulation(scene, duration=0.3, method="ipc", gravity=gravity_down(), ground=-0.001,
                          impulses=[(int(i), 0, 0, -0.05) for i in np.flatnonzero(top)])
     p = np.asarray(rec.points)
     gap = p[:, top, 2].min(axis=1) - p[:, ~top, 2].max(axis=1)

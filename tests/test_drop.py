@@ -17,6 +17,7 @@ import shapes
 from sc_fem import Scene
 from sc_fem.dynamics.job import run_simulation, up_axis
 from sc_fem.geometry.mesh import load_mesh
+from sc_fem.units import gravity_down
 
 
 def drop(mesh, *, up="z", scale=1.0, resolution=16, gap=0.05, duration=0.5, **kw):
@@ -26,7 +27,7 @@ def drop(mesh, *, up="z", scale=1.0, resolution=16, gap=0.05, duration=0.5, **kw
     V = scene.rest_vertices
     h = float(np.ptp(V[:, a]))
     ground = float(V[:, a].min()) - gap * h
-    rec = run_simulation(scene, duration=duration, gravity=True, ground=ground, up=up, **kw)
+    rec = run_simulation(scene, duration=duration, gravity=gravity_down(up), ground=ground, up=up, **kw)
     potential = scene.model.total_mass * 9.81 * gap * h * scale
     return scene, rec, ground, potential, float(np.linalg.norm(np.ptp(V, axis=0)))
 
@@ -78,7 +79,7 @@ def test_the_chair_on_the_ground_it_stands_on_settles():
     """The issue's first command: the chair standing on z = 0 with ``--ground 0`` (it touches the
     ground at rest: the ground is lowered by the barrier's distance, reported as ground_shift)."""
     scene = Scene.from_mesh("builtin:chair", resolution=16)
-    rec = run_simulation(scene, duration=0.5, gravity=True, ground=0.0)
+    rec = run_simulation(scene, duration=0.5, gravity=gravity_down(), ground=0.0)
     assert rec.info["ground_shift"] > 0 and rec.info["ground_shift"] <= 2 * rec.info["dhat"]
     assert rec.points[:, :, 2].min() >= -rec.info["ground_shift"] - 1e-9
     assert rec.energy_gain <= 0.01
@@ -87,7 +88,7 @@ def test_the_chair_on_the_ground_it_stands_on_settles():
 
 def test_a_long_run_of_seconds_stays_at_rest():
     scene = Scene.from_mesh("builtin:chair", resolution=12)
-    rec = run_simulation(scene, duration=3.0, gravity=True, ground=-0.05, fps=25)
+    rec = run_simulation(scene, duration=3.0, gravity=gravity_down(), ground=-0.05, fps=25)
     assert rec.energy_gain <= 0.01
     z = rec.points[:, :, 2]
     assert z.min() >= -0.05 - 1e-6
@@ -126,7 +127,7 @@ def test_friction_stops_a_sliding_block_where_coulomb_says():
 
 def test_sphere_and_box_obstacles_are_never_entered():
     scene = Scene.from_mesh("builtin:chair", resolution=12)
-    rec = run_simulation(scene, duration=0.3, gravity=True, ground=-0.3, sphere=(0.0, 0.0, -0.15, 0.1),
+    rec = run_simulation(scene, duration=0.3, gravity=gravity_down(), ground=-0.3, sphere=(0.0, 0.0, -0.15, 0.1),
                          box=(0.15, -0.4, -0.3, 0.5, 0.4, -0.02))
     p = rec.points
     r = np.linalg.norm(p - np.array([0.0, 0.0, -0.15]), axis=2)
@@ -155,7 +156,7 @@ def test_self_contact_stops_a_body_folding_through_itself():
     upper = np.flatnonzero((V[:, 2] > 0.2 - 1e-9) & (V[:, 0] > 0.2))
     low = {}
     for on in (True, False):
-        rec = run_simulation(scene, method="ipc", duration=0.6, gravity=True, self_contact=on, friction=0.0)
+        rec = run_simulation(scene, method="ipc", duration=0.6, gravity=gravity_down(), self_contact=on, friction=0.0)
         low[on] = float(rec.points[:, upper, 2].min())
         assert rec.energy_gain <= 0.01
     assert low[True] >= 0.05                     # the lower arm's top
@@ -172,7 +173,7 @@ def test_two_bodies_dropped_on_each_other_stay_apart():
     top = shapes.stacked_on(shapes.parts(a)[0], shapes.parts(a)[1], gap=0.05)
     scene = Scene.from_mesh(top, resolution=24, youngs=1e6, density=500.0, fill="solid", keep="all")
     V, F = scene.rest_vertices, scene.faces
-    rec = run_simulation(scene, duration=0.5, gravity=True, ground=float(V[:, 2].min()) - 0.01)
+    rec = run_simulation(scene, duration=0.5, gravity=gravity_down(), ground=float(V[:, 2].min()) - 0.01)
     assert rec.info["bodies"] == 2
     upper = V[:, 2] > 0.5 * (V[:, 2].min() + V[:, 2].max())
     fu, fl = F[upper[F].all(axis=1)], F[(~upper)[F].all(axis=1)]
@@ -205,7 +206,7 @@ def test_a_column_left_on_the_ground_rests_at_its_static_sag(poisson):
     scene = Scene.from_mesh(col, **opts)
     V = scene.rest_vertices
     top, bottom = V[:, 2] > 0.4 - 1e-9, V[:, 2] < 1e-9
-    rec = run_simulation(scene, duration=1.0, gravity=True, ground=-0.002, friction=0.0)
+    rec = run_simulation(scene, duration=1.0, gravity=gravity_down(), ground=-0.002, friction=0.0)
     d = rec.points[-1] - V
     sag = d[top, 2].mean() - d[bottom, 2].mean()
     assert sag == pytest.approx(-1000.0 * 9.81 * 0.4**2 / (2 * 1e6), rel=0.02)

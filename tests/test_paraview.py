@@ -11,6 +11,7 @@ import sc_fem
 from sc_fem.errors import InputError
 from sc_fem.lattice.cubes import CubeModel
 from sc_fem.material import lame
+from sc_fem.units import gravity_down
 
 
 @pytest.fixture(scope="module")
@@ -111,7 +112,7 @@ def test_simulated_xdmf_carries_the_lattice_with_its_energy_density(tmp_path, mo
 
     out = tmp_path / "run.xdmf"
     res = simulate_to_file("builtin:beam", out, duration=0.01, fps=500, voxel={"resolution": 10}, fix="default",
-                           gravity=True, dt=1e-3)
+                           gravity=gravity_down(), dt=1e-3)
     rec, lattice = res.result, tmp_path / "run_lattice.xdmf"
     assert res.written == [out, lattice] and "run_lattice.xdmf" in res.text
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run.h5", "run.xdmf", "run_lattice.h5", "run_lattice.xdmf"]

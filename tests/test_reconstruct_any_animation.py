@@ -14,6 +14,7 @@ from sc_fem.dynamics.job import run_simulation
 from sc_fem.io.animation import load_animation, write_animation
 from sc_fem.io.reconstruction import load_reconstruction
 from sc_fem.reconstruct import reconstruct_animation
+from sc_fem.units import gravity_down
 
 FIT = list(range(0, 21, 2))
 
@@ -23,7 +24,7 @@ def _animation(source, path):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")                 # size / point-cloud notes of odd meshes
         scene = Scene.from_mesh(source, resolution=10, fix="x<min+1e-9", youngs=1e6, poisson=0.3, density=1000)
-    rec = run_simulation(scene, dt=0.01, duration=0.2, gravity=True, fps=100)
+    rec = run_simulation(scene, dt=0.01, duration=0.2, gravity=gravity_down(), fps=100)
     return write_animation(path, scene, rec)
 
 
@@ -77,7 +78,7 @@ def test_simulate_stores_the_lattice_and_reconstruct_maps_its_node_lines_back_ex
     node lines are incomplete (the chair) is refused with the reason."""
 
     scene = Scene.from_mesh("builtin:beam", resolution=24, fix="x<min+1e-9", youngs=1e6, poisson=0.3, density=1000)
-    rec = run_simulation(scene, dt=0.01, duration=0.2, gravity=True, fps=100)
+    rec = run_simulation(scene, dt=0.01, duration=0.2, gravity=gravity_down(), fps=100)
     anim = load_animation(write_animation(tmp_path / "a.npz", scene, rec))
     L = anim.lattice
     assert L is not None and L.displacements.shape == (anim.n_frames, len(L.rest), 3)

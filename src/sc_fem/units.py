@@ -8,3 +8,26 @@ from __future__ import annotations
 
 GRAVITY: float = 9.81
 """Standard gravity (m/s^2), the magnitude used wherever "gravity on" is asked for by name."""
+
+AXES: tuple[str, ...] = ("x", "y", "z")
+"""Names of the axes a model's ``up`` may be."""
+
+
+def gravity_down(up: str = "z") -> tuple[float, float, float]:
+    """Standard gravity pointing down a model's ``up`` axis: the gravity vector of "gravity on".
+
+    Parameters
+    ----------
+    up : {"x", "y", "z"}
+        The model's up axis (many OBJ and glTF models are y-up).
+
+    Returns
+    -------
+    tuple of 3 float
+        Gravitational acceleration, m/s^2, e.g. ``(0, 0, -9.81)`` for ``up="z"``.
+    """
+    if up not in AXES:
+        from .errors import InputError
+
+        raise InputError(f"up must be one of {list(AXES)}, got {up!r}")
+    return tuple(-GRAVITY if a == up else 0.0 for a in AXES)

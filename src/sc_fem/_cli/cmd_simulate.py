@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from .._validate import positive_scalar
 from ..errors import InputError
+from ..units import gravity_down
 from .common import (add_element_arg, add_fix_args, add_grid_args, add_impulse_arg, add_material_args, add_mesh_arg,
                      add_quiet, add_up_arg, command, finish, fix_options, impulse_arg, voxel_options)
 
@@ -13,10 +14,9 @@ def register(sub) -> None:
     p = command(
         sub, "simulate", run, outputs=(".npz", ".xdmf", ".mp4", ".gif"),
         help="time integration (Newmark, corotational, central differences) with loads and contact",
-        description="Simulate MESH as elastic cubes for DURATION seconds with step DT and write the source "
-                    "mesh's vertex animation: .npz (sc_fem.io.animation), .xdmf (ParaView time series with its arrays "
-                    "in NAME.h5 beside it, point data 'displacement' in model units: apply Warp By Vector), or a "
-                    "rendered .mp4/.gif. A run that blows up stops with the time step and dt_crit and writes nothing.")
+        description="Simulate MESH as elastic cubes for DURATION s (step DT) and write the source mesh's vertex "
+                    "animation: .npz, .xdmf (ParaView: 'displacement' in model units, Warp By Vector; the cubes in "
+                    "NAME_lattice.xdmf) or a rendered .mp4/.gif. A run that blows up writes nothing.")
     add_mesh_arg(p)
     add_grid_args(p)
     add_material_args(p)
@@ -82,12 +82,12 @@ def run(args) -> int:
     if ratio is not None and abs(ratio - max(1, round(ratio))) > 1e-6 * ratio:
         raise InputError(f"--dt {args.dt:g} s does not divide the frame step 1/--fps = {1 / args.fps:.6g} s "
                          f"(the frames would not be stored at {args.fps:g} fps): give a --dt that divides it")
-    same = ("dt", "method", "gravity", "gust", "ground", "sphere", "box", "velocity", "friction", "self_contact",
-            "rayleigh", "element", "up")                  # run_simulation's keywords spelled as the options
+    same = ("dt", "method", "gust", "ground", "sphere", "box", "velocity", "friction", "self_contact", "rayleigh",
+            "element", "up")                               # run_simulation's keywords spelled as the options
     return finish(args, simulate_to_file(
         args.mesh, args.output, duration=args.duration, fps=args.fps, voxel=voxel_options(args), **fix_options(args),
         exaggerate=args.magnify, verbose=not args.quiet, progress=not (args.quiet or args.no_progress),
-        impulses=[(v, *j) for v, j in map(impulse_arg, args.impulse)],
+        impulses=[(v, *j) for v, j in map(impulse_arg, args.impulse)], gravity=gravity_down(args.up) if args.gravity else None,
         newmark=NewmarkOptions(beta=args.beta, gamma=args.gamma, alpha=args.hht_alpha),
         xpbd=XPBDOptions(substeps=args.substeps, iterations=args.iterations, constraints=args.constraints,
                          damping=args.xpbd_damping), **{k: getattr(args, k) for k in same}))

@@ -10,7 +10,7 @@ import numpy as np
 
 from .._validate import as_float_array, positive_scalar
 from ..errors import InputError
-from ..units import GRAVITY
+from ..units import AXES
 from .newmark import NewmarkOptions
 from .xpbd import XPBDOptions
 
@@ -20,8 +20,6 @@ LATTICE_TRACK_BYTES = 256 * 2**20
 ENERGY_GAIN_WARN = 0.05
 """Energy created beyond the loads' work (fraction of :attr:`Recording.energy_scale`) past which a
 run is flagged."""
-
-AXES = "xyz"
 
 
 def up_axis(up: str) -> int:
@@ -81,7 +79,7 @@ def default_dt(method: str, fps: float) -> float:
 
 
 def run_simulation(scene, *, duration: float, dt: float | None = None, method: str = "auto", fps: float = 50.0,
-                   gravity: bool = False, gust=None, ground=None, sphere=None, box=None, impulses=(),
+                   gravity=None, gust=None, ground=None, sphere=None, box=None, impulses=(),
                    velocity=None, friction: float = 0.3, self_contact: bool = True, rayleigh=(0.0, 0.0), newmark: NewmarkOptions = NewmarkOptions(),
                    xpbd: XPBDOptions = XPBDOptions(), element: str | None = None, up: str = "z",
                    progress: bool = False):
@@ -104,8 +102,9 @@ def run_simulation(scene, *, duration: float, dt: float | None = None, method: s
     fps : float
         Frames per second recorded (the recorded frames are ``round(1 / (fps dt))`` steps apart;
         a ``dt`` that does not divide the frame step is an error).
-    gravity : bool
-        Gravity 9.81 m/s^2 along -``up``.
+    gravity : array_like, shape (3,), optional
+        Gravitational acceleration, m/s^2 (the type :func:`~sc_fem.fem.static.solve_static` and
+        XPBD take); "gravity on" along the model's ``up`` is :func:`sc_fem.units.gravity_down` ``(up)``.
     gust : (Fx, Fy, Fz, seconds), optional
         Total force (N) spread equally over the source vertices, half-sine pulse.
     ground, sphere, box : optional
@@ -157,10 +156,9 @@ def run_simulation(scene, *, duration: float, dt: float | None = None, method: s
         ("substeps/iterations/constraints/xpbd-damping", xpbd != XPBDOptions())) if on])
     element = DEFAULT_ELEMENT if element is None else element
     model, verts = scene.model, scene.rest_vertices
-    a = up_axis(up)
-    g = tuple(-GRAVITY if gravity and k == a else 0.0 for k in range(3))
+    g = None if gravity is None else tuple(as_float_array(gravity, "gravity (m/s^2)", (3,)).tolist())
     dt = default_dt(method, fps) if dt is None else positive_scalar(dt, "dt")
-    loads = [Gravity(g)] if gravity else []
+    loads = [Gravity(g)] if g is not None and any(g) else []
     if gust is not None:
         fx, fy, fz, secs = as_float_array(gust, "gust (Fx, Fy, Fz, seconds)", (4,))
         loads.append(VertexForce(np.arange(len(verts)), np.array([fx, fy, fz]) / len(verts), half_sine(secs),
@@ -212,7 +210,7 @@ def run_simulation(scene, *, duration: float, dt: float | None = None, method: s
         warnings.append(f"the run created energy: up to {100 * rec.energy_gain:.3g} % of its energy scale beyond the "
                         f"work of the loads: it is not converged ({integ.convergence_hint})")
     info = {"method": method, "dt": dt, "fps": fps, "duration": duration, "n_steps": n_steps, "source": scene.source,
-            "element": element, "material": model.info.get("material", ""), "gravity": bool(gravity),
+            "element": element, "material": model.info.get("material", ""), "gravity": g,
             "ground": ground, "up": up, "sphere": None if sphere is None else [float(x) for x in sphere],
             "box": None if box is None else [float(x) for x in box], "rayleigh": [float(x) for x in rayleigh], "hht_alpha": newmark.alpha,
             "dt_crit": dtc, "scale": model.scale, "cubes": model.n_cubes, **rec.info,

@@ -148,12 +148,13 @@ def demo_dynamics(out: str | Path, *, resolution: int = 16) -> list[Path]:
     """
     from ..dynamics.job import run_simulation
     from ..scene import Scene
+    from ..units import gravity_down
     from .animation import write_animation
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     scene = Scene.from_mesh("builtin:bridge", resolution=resolution, fix="default")
-    rec = run_simulation(scene, dt=0.001, duration=0.5, gravity=True, gust=(0.0, 2e7, 0.0, 0.02),
+    rec = run_simulation(scene, dt=0.001, duration=0.5, gravity=gravity_down("z"), gust=(0.0, 2e7, 0.0, 0.02),
                          rayleigh=(1.0, 2e-4), fps=250)
     written = [write_animation(out / "bridge_gust.npz", scene, rec)]
     try:
