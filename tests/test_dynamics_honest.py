@@ -114,3 +114,19 @@ def test_a_point_force_is_shared_by_the_mass_around_its_vertex():
     assert on.sum() >= 8                                      # at least the 8 nodes of its cube
     acc = f[on] / model.node_masses()[on, None]
     np.testing.assert_allclose(acc, np.broadcast_to(acc[0], acc.shape), rtol=1e-12)   # one acceleration
+
+
+def test_gravity_is_a_vector_and_a_bool_is_refused():
+    """run_simulation takes gravity as the acceleration vector (m/s^2), like solve_static: the beam
+    falls freely by g t^2 / 2 along it (here along -y, a y-up model), and ``gravity=True`` (the old
+    flag) is one clear InputError, not a silent zero."""
+    from sc_fem.units import gravity_down
+
+    scene = Scene.from_mesh("builtin:beam", resolution=6)
+    rec = run_simulation(scene, duration=0.05, gravity=gravity_down("y"), up="y", fps=100)
+    drop = np.asarray(rec.points)[-1] - np.asarray(rec.points)[0]
+    np.testing.assert_allclose(drop.mean(axis=0), [0.0, -0.5 * 9.81 * 0.05**2, 0.0], atol=1e-4)
+    with pytest.raises(InputError, match="gravity"):
+        run_simulation(scene, duration=0.05, gravity=True)
+    with pytest.raises(InputError, match="up must be"):
+        gravity_down("w")
