@@ -239,7 +239,7 @@ class StaticOptions:
 
 
 def choose_static_solver(n: int, nnz: int, solver: str = "auto", *, lattice: bool = True,
-                         max_memory: float | None = None) -> tuple[str, str]:
+                         max_memory: float | None = None, min_dofs: int | None = None) -> tuple[str, str]:
     """``("direct" | "cg-amg", reason)`` for ``K u = f`` with ``n`` free DOFs and ``nnz`` nonzeros.
 
     Parameters
@@ -254,6 +254,8 @@ def choose_static_solver(n: int, nnz: int, solver: str = "auto", *, lattice: boo
     max_memory : float, optional
         Budget in bytes (default half the available memory): a factorization estimated above it
         is not chosen below :data:`CG_AMG_MIN_DOFS` either.
+    min_dofs : int, optional
+        CG + AMG from this many DOFs on (default :data:`CG_AMG_MIN_DOFS`).
 
     Returns
     -------
@@ -264,13 +266,14 @@ def choose_static_solver(n: int, nnz: int, solver: str = "auto", *, lattice: boo
         return solver, "requested"
     if not lattice:
         return "direct", "higher-order cubes: direct (the AMG is tuned for trilinear cubes)"
+    min_dofs = CG_AMG_MIN_DOFS if min_dofs is None else min_dofs
     need, budget = factor_memory_estimate(n, nnz), memory_budget(max_memory)
-    if n >= CG_AMG_MIN_DOFS:
-        return "cg-amg", f"{n:,} DOFs >= {CG_AMG_MIN_DOFS:,}: CG + AMG"
+    if n >= min_dofs:
+        return "cg-amg", f"{n:,} DOFs >= {min_dofs:,}: CG + AMG"
     if need > budget:
         return "cg-amg", (f"the factorization would need ~{need / 2**20:,.0f} MiB > budget "
                           f"{budget / 2**20:,.0f} MiB: CG + AMG")
-    return "direct", f"{n:,} DOFs < {CG_AMG_MIN_DOFS:,}: direct"
+    return "direct", f"{n:,} DOFs < {min_dofs:,}: direct"
 
 
 DYNAMIC_CG_MIN_DOFS = 100_000
@@ -370,12 +373,4 @@ def choose_dynamic_solver(n: int, nnz: int, solver: str = "auto", *, max_memory:
     solver : str
     reason : str
     """
-    if solver != "auto":
-        return solver, "requested"
-    if n >= DYNAMIC_CG_MIN_DOFS:
-        return "cg-amg", f"{n:,} DOFs >= {DYNAMIC_CG_MIN_DOFS:,}: CG + AMG"
-    need, budget = factor_memory_estimate(n, nnz), memory_budget(max_memory)
-    if need > budget:
-        return "cg-amg", (f"the factorization would need ~{need / 2**20:,.0f} MiB > budget "
-                          f"{budget / 2**20:,.0f} MiB: CG + AMG")
-    return "direct", f"{n:,} DOFs < {DYNAMIC_CG_MIN_DOFS:,}: direct"
+    return choose_static_solver(n, nnz, solver, max_memory=max_memory, min_dofs=DYNAMIC_CG_MIN_DOFS)
