@@ -74,6 +74,21 @@ def run_build_script() -> str | None:
     return f"{BUILD_SCRIPT.name} did not write the bundle: {notes}"
 
 
+def rebuild_bundle(command) -> tuple[str | None, str | None]:
+    """Run the build script when the bundle needs it (saying so through ``command.announce``).
+
+    Returns
+    -------
+    why, problem : str or None
+        :func:`bundle_status` (None: up to date, nothing run) and :func:`run_build_script`'s answer.
+    """
+    why = bundle_status()
+    if why is None:
+        return None, None
+    command.announce(f"sc_fem web viewer bundle {why}: running {BUILD_SCRIPT}", level=logging.INFO)
+    return why, run_build_script()
+
+
 class BuildPyWithViewer(build_py):
     """``build_py`` that first makes sure the web viewer's bundle exists (see the module docstring)."""
 
@@ -86,10 +101,8 @@ class BuildPyWithViewer(build_py):
             The bundle is missing and cannot be built (the message says why and what to install).
         """
         if not self.editable_mode:
-            why = bundle_status()
+            why, problem = rebuild_bundle(self)
             if why is not None:
-                self.announce(f"sc_fem web viewer bundle {why}: running {BUILD_SCRIPT}", level=logging.INFO)
-                problem = run_build_script()
                 if problem is not None and not BUNDLE.is_file():
                     raise ExecError(
                         f"the web viewer's JavaScript bundle {BUNDLE} is missing and could not be built: "
@@ -107,10 +120,8 @@ class SdistWithViewer(sdist):
 
     def run(self) -> None:
         """Build the bundle when it is missing or stale (a warning where it cannot be), then the sdist."""
-        why = bundle_status()
+        why, problem = rebuild_bundle(self)
         if why is not None:
-            self.announce(f"sc_fem web viewer bundle {why}: running {BUILD_SCRIPT}", level=logging.INFO)
-            problem = run_build_script()
             if problem is not None:
                 self.warn(f"the web viewer's bundle is {why} and could not be built: {problem}. The sdist "
                           "carries main.js and the build script instead, so installing it needs npm")

@@ -217,3 +217,37 @@ def test_mass_solver_equals_the_factorization_and_falls_back_when_cg_fails(monke
     ms = linsolve.MassSolver(M, lambda: linsolve.factorize(M))
     np.testing.assert_allclose(ms.solve(b), ref, rtol=0, atol=1e-10 * np.abs(ref).max())
     assert ms.stats["fallback"]
+
+
+def test_newmark_initial_acceleration_falls_back_to_a_factorization_in_the_options_backend(monkeypatch):
+    """Through Newmark (consistent mass, gravity): the initial acceleration by CG equals the one by
+    the fallback when CG is starved (2 iterations), the fallback is a factorization in the backend
+    the solver options name (not CG + AMG again), and that backend is the integrator's for every
+    direct solve."""
+    from sc_fem.fem import linsolve
+
+    m, fixed = cantilever()
+    make = lambda: Newmark(m, 1e-3, fixed_nodes=fixed, loads=LoadSet(m, [Gravity(G)]),  # noqa: E731
+                           solver=DynamicOptions(solver="cg-amg", backend="splu"))
+    ref = make()
+    assert ref.backend == "splu" and not ref._mass_solver.stats["fallback"]
+    monkeypatch.setitem(linsolve.MASS_CG, "maxiter", 2)
+    starved = make()
+    assert starved._mass_solver.stats["fallback"]
+    assert isinstance(starved._mass_solver._direct, linsolve.Factorization)
+    assert starved._mass_solver._direct.backend == "splu"
+    np.testing.assert_allclose(starved._a, ref._a, rtol=0, atol=1e-9 * np.abs(ref._a).max())
+
+
+def test_auto_keeps_iterating_when_the_factorization_does_not_fit(monkeypatch):
+    """``"auto"`` caps CG at DYNAMIC_CG_ITERATIONS only when a direct solve can take over; when the
+    factorization does not fit in memory, CG keeps the full ``maxiter`` (no way out but on)."""
+    A = CubeModel.box((6, 3, 3), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
+    from sc_fem.fem.assemble import Assembler
+
+    K = Assembler(A, "q1i", fixed_dofs=np.arange(3 * 16)).stiffness()
+    opts = DynamicOptions(solver="auto", maxiter=777)
+    assert opts.solver_for(K).maxiter == min(777, options.DYNAMIC_CG_ITERATIONS)
+    monkeypatch.setattr(options, "memory_budget", lambda max_memory=None: 1.0)      # nothing fits
+    tight = opts.solver_for(K)
+    assert tight.kind == "cg-amg" and tight.fallback is None and tight.maxiter == 777

@@ -13,6 +13,26 @@ AXES: tuple[str, ...] = ("x", "y", "z")
 """Names of the axes a model's ``up`` may be."""
 
 
+def up_axis(up: str) -> int:
+    """Index of a model's up axis.
+
+    Parameters
+    ----------
+    up : {"x", "y", "z"}
+        The model's up axis.
+
+    Returns
+    -------
+    int
+        0, 1 or 2.
+    """
+    if up not in AXES:
+        from .errors import InputError
+
+        raise InputError(f"up must be one of {list(AXES)}, got {up!r}")
+    return AXES.index(up)
+
+
 def gravity_down(up: str = "z") -> tuple[float, float, float]:
     """Standard gravity pointing down a model's ``up`` axis: the gravity vector of "gravity on".
 
@@ -26,8 +46,5 @@ def gravity_down(up: str = "z") -> tuple[float, float, float]:
     tuple of 3 float
         Gravitational acceleration, m/s^2, e.g. ``(0, 0, -9.81)`` for ``up="z"``.
     """
-    if up not in AXES:
-        from .errors import InputError
-
-        raise InputError(f"up must be one of {list(AXES)}, got {up!r}")
-    return tuple(-GRAVITY if a == up else 0.0 for a in AXES)
+    a = up_axis(up)
+    return tuple(-GRAVITY if k == a else 0.0 for k in range(3))

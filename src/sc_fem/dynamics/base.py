@@ -27,7 +27,7 @@ from ..fem.elements import DEFAULT_ELEMENT
 from ..errors import BoundaryConditionError, InputError, SolverError
 from ..lattice.cubes import CubeModel
 from ..fem.options import DynamicOptions
-from ..fem.linsolve import MassSolver
+from ..fem.linsolve import MassSolver, SystemSolver, factorize
 from ..fem.rigid import rigid_body_modes
 from ..fem.static import lattice_aggregates, node_parts
 from .contact import Contact
@@ -252,9 +252,9 @@ class AssembledIntegrator(TimeIntegrator):
                  rayleigh: tuple[float, float] = (0.0, 0.0), lumped: bool = False, u0: ArrayLike | None = None,
                  v0: ArrayLike | None = None, backend: str = "auto", solver: DynamicOptions | str | None = None) -> None:
         super().__init__(model, dt, fixed_nodes=fixed_nodes, loads=loads)
-        self.element, self.backend = element, backend
         opts = DynamicOptions.coerce(solver)
         self.solver_options = opts if backend == "auto" else replace(opts, backend=backend)
+        self.element, self.backend = element, self.solver_options.backend      # one backend for every solve
         fn, t0 = self.fixed_nodes, _time.perf_counter()
         self.asm = Assembler(model, element, fixed_dofs=_fixed_dofs(fn))
         if self.asm.shape[0] == 0:
@@ -284,7 +284,7 @@ class AssembledIntegrator(TimeIntegrator):
         self._a = self._initial_acceleration()
 
     # ------------------------------------------------------------------ helpers
-    def _linear_solver(self, A: sp.spmatrix) -> "SystemSolver":
+    def _linear_solver(self, A: sp.spmatrix) -> SystemSolver:
         """Solver of ``A x = b`` (``A`` SPD on the free DOFs, e.g. an effective matrix) chosen by
         :attr:`solver_options`: direct, or CG + AMG with the lattice's rigid modes and aggregates."""
         if self._amg_data is None:                   # the AMG's near-null space and finest aggregates
@@ -376,7 +376,7 @@ class AssembledIntegrator(TimeIntegrator):
         if self._minv is not None:
             return self._minv * r
         if self._mass_solver is None:            # CG on the diagonal-scaled mass; a factorization if it fails
-            self._mass_solver = MassSolver(self.M, lambda: self._linear_solver(self.M))
+            self._mass_solver = MassSolver(self.M, lambda: factorize(self.M, self.backend))
         return self._mass_solver.solve(r)
 
     def _initial_acceleration(self) -> np.ndarray:

@@ -10,7 +10,7 @@ import numpy as np
 
 from .._validate import as_float_array, positive_scalar
 from ..errors import InputError
-from ..units import AXES
+from ..units import up_axis
 from .newmark import NewmarkOptions
 from .xpbd import XPBDOptions
 
@@ -20,13 +20,6 @@ LATTICE_TRACK_BYTES = 256 * 2**20
 ENERGY_GAIN_WARN = 0.05
 """Energy created beyond the loads' work (fraction of :attr:`Recording.energy_scale`) past which a
 run is flagged."""
-
-
-def up_axis(up: str) -> int:
-    """0, 1 or 2 for ``"x"``, ``"y"``, ``"z"`` (the model's up direction)."""
-    if up not in ("x", "y", "z"):
-        raise InputError(f"up must be 'x', 'y' or 'z', got {up!r}")
-    return AXES.index(up)
 
 
 OPTIONS = {"gust": "loads", "impulse": "impulses", "velocity": "velocity", "ground": "contact",

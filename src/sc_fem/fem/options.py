@@ -325,7 +325,8 @@ class DynamicOptions(StaticOptions):
     def solver_for(self, A, *, near_null=None, aggregates=None):
         """The :class:`~sc_fem.fem.linsolve.SystemSolver` of ``A`` these options choose
         (:func:`choose_dynamic_solver`; ``"auto"``: CG limited to :data:`DYNAMIC_CG_ITERATIONS`, then
-        direct for good if the factorization fits in memory).
+        direct for good, when the factorization fits in memory; when it does not, CG has no way out
+        and may take ``maxiter`` iterations).
 
         Parameters
         ----------
@@ -349,7 +350,7 @@ class DynamicOptions(StaticOptions):
                 if not auto else f"the direct solve would need ~{need / 2**30:.1f} GiB > budget "
                 f"{budget / 2**30:.1f} GiB")
         return SystemSolver(A, kind, reason=reason, tol=self.tol, backend=self.backend, fallback=fallback,
-                            hint=hint, maxiter=min(self.maxiter, DYNAMIC_CG_ITERATIONS) if auto else self.maxiter,
+                            hint=hint, maxiter=min(self.maxiter, DYNAMIC_CG_ITERATIONS) if fallback else self.maxiter,
                             near_null=near_null, aggregates=aggregates)
 
 

@@ -52,6 +52,27 @@ ANIMATION_READS = (1, 2)
 ANIMATION_KIND = "sc_fem.animation"
 
 
+def frame_rate(times: np.ndarray, default: float = 30.0) -> float:
+    """The frame rate of an animation's frame times, as written to the stage.
+
+    Parameters
+    ----------
+    times : ndarray, shape (T,)
+        Frame times, s, increasing.
+    default : float
+        Frames per second of a single-frame animation.
+
+    Returns
+    -------
+    float
+        ``(T - 1) / (t_{T-1} - t_0)``, rounded to 9 significant digits (so the 100.00000000000007
+        of times summed in floating point is 100).
+    """
+    t = np.asarray(times, dtype=float)
+    rate = (len(t) - 1) / (t[-1] - t[0]) if len(t) > 1 else float(default)
+    return float(f"{rate:.9g}")
+
+
 @dataclass(frozen=True, eq=False)
 class Animation:
     """A vertex animation of a source mesh.
@@ -96,7 +117,7 @@ class Animation:
         a single frame."""
         if self.n_frames < 2:
             return None
-        rate = float(f"{(self.n_frames - 1) / (self.times[-1] - self.times[0]):.9g}")
+        rate = frame_rate(self.times)
         said = self.meta.get("fps") if isinstance(self.meta, dict) else None
         ok = isinstance(said, (int, float)) and not isinstance(said, bool) and abs(said - rate) <= 1e-6 * rate
         return float(said) if ok else rate
@@ -396,7 +417,7 @@ def write_animation(path, scene, rec, *, exaggerate: float = 1.0, fps: float = 5
     from .render import render_animation
 
     from ..dynamics.contact import obstacles_from
-    from ..dynamics.job import up_axis
+    from ..units import up_axis
 
     exaggerate = positive_scalar(exaggerate, "exaggerate")
     info = rec.info

@@ -80,6 +80,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..units import up_axis
 from .asset import _document
 from .normals import _Normals, _unit
 
@@ -215,8 +216,7 @@ def alias_warning(frequencies, fps: float, moving=None) -> str | None:
 
 
 def _axes(up: str, scale: float, units: str, engine: bool) -> tuple[np.ndarray, float, dict]:
-    if up not in UP_TO_GLTF:
-        raise InputError(f"up must be 'x', 'y' or 'z', got {up!r}")
+    up_axis(up)                                          # one clear error for a bad axis
     if not engine:
         return np.eye(3), 1.0, {"up": up, "gltf_up": "the model's own (the viewer turns it)",
                                 "model_to_gltf": np.eye(3).tolist(), "units": "model units",

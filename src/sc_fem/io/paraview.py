@@ -40,6 +40,14 @@ _CHUNK_BYTES = 32 * 2**20
 """Working memory per chunk of cubes in :func:`strain_energy_density` (about 3 arrays of this size)."""
 
 
+def _surface_cells(faces: np.ndarray, n_points: int) -> tuple[np.ndarray, str]:
+    """The cells a surface is written with: its triangles (m, 3), or for a point set (no faces) one
+    vertex cell per point (n, 1); and their kind, ``"triangle"`` or ``"vertex"`` (meshio's names)."""
+    if len(faces):
+        return faces, "triangle"
+    return np.arange(n_points, dtype=np.int64)[:, None], "vertex"
+
+
 def modes_content(basis: Any) -> tuple[np.ndarray, np.ndarray, int, dict, dict]:
     """What a ParaView mode file holds (the ``.vtu`` and the ``.vtkhdf`` alike).
 
@@ -67,8 +75,8 @@ def modes_content(basis: Any) -> tuple[np.ndarray, np.ndarray, int, dict, dict]:
         raise InputError(f"basis must be a ModalBasis, got {type(basis).__name__}")
     faces = np.asarray(basis.faces, dtype=np.int64).reshape(-1, 3)
     points = np.asarray(basis.vertices, dtype=np.float64)
-    cells, cell_type = (faces, _VTK_TRIANGLE) if len(faces) else \
-        (np.arange(len(points), dtype=np.int64)[:, None], _VTK_VERTEX)
+    cells, kind = _surface_cells(faces, len(points))
+    cell_type = _VTK_TRIANGLE if kind == "triangle" else _VTK_VERTEX
     width = len(str(max(basis.n_modes - 1, 0)))
     point_data = {f"mode_{k:0{width}d}": np.asarray(basis.modes[k], dtype=np.float32) for k in range(basis.n_modes)}
     field_data = {"frequency_Hz": np.asarray(basis.frequencies, dtype=np.float64),
@@ -260,8 +268,8 @@ def write_xdmf_series(path: str | Path, rest: ArrayLike, faces: ArrayLike, times
         raise InputError(f"positions must have shape ({len(times)}, {len(rest)}, 3), got {positions.shape}")
     if (model is None) != (node_displacements is None):
         raise InputError("the lattice needs both the model and its node displacements")
-    jobs = [(path.name, rest, [("triangle", faces)] if len(faces) else
-             [("vertex", np.arange(len(rest), dtype=np.int64)[:, None])], times,
+    cells, kind = _surface_cells(faces, len(rest))
+    jobs = [(path.name, rest, [(kind, cells)], times,
              ({"displacement": p - rest} for p in positions), None)]
     if model is not None:
         u = np.asarray(node_displacements, dtype=np.float64)

@@ -22,6 +22,7 @@ import numpy as np
 from .._atomic import atomic_path
 from .._validate import as_float_array, positive_int
 from ..errors import InputError
+from ..units import up_axis
 from ..lattice.cubes import CubeModel
 from ..modes.basis import ModalBasis
 from .opengl import ensure_rendering
@@ -77,9 +78,7 @@ def cubes_grid(model: CubeModel, node_positions: np.ndarray | None = None):
 def view_vectors(up: str = "z") -> tuple[np.ndarray, np.ndarray]:
     """Camera direction (from the focal point to the camera) and view-up for a model whose up
     axis is ``up``: a three-quarter view from above, the up axis drawn upward."""
-    if up not in ("x", "y", "z"):
-        raise InputError(f"up must be 'x', 'y' or 'z', got {up!r}")
-    a = "xyz".index(up)
+    a = up_axis(up)
     e = np.eye(3)
     h1, h2 = e[(a + 1) % 3], e[(a + 2) % 3]
     return 1.0 * h1 - 1.3 * h2 + 0.9 * e[a], e[a]

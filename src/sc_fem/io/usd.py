@@ -48,6 +48,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError, OutputError, ScFemError
+from ..units import up_axis
+from .animation import frame_rate
 from .gltf import DEFAULT_AMPLITUDE, UP_TO_GLTF, _load, _surface, mode_scales
 from .normals import _Normals
 
@@ -82,32 +84,10 @@ def stage_axes(up: str) -> tuple[np.ndarray, str]:
     up_axis : {"Z", "Y"}
         The stage's ``upAxis`` metadata.
     """
-    if up not in UP_TO_GLTF:
-        raise InputError(f"up must be 'x', 'y' or 'z', got {up!r}")
+    up_axis(up)
     if up == "x":
         return np.asarray(UP_TO_GLTF["x"], dtype=float), "Y"
     return np.eye(3), up.upper()
-
-
-def frame_rate(times: np.ndarray, default: float = 30.0) -> float:
-    """The frame rate of an animation's frame times, as written to the stage.
-
-    Parameters
-    ----------
-    times : ndarray, shape (T,)
-        Frame times, s, increasing.
-    default : float
-        Frames per second of a single-frame animation.
-
-    Returns
-    -------
-    float
-        ``(T - 1) / (t_{T-1} - t_0)``, rounded to 9 significant digits (so the 100.00000000000007
-        of times summed in floating point is 100).
-    """
-    t = np.asarray(times, dtype=float)
-    rate = (len(t) - 1) / (t[-1] - t[0]) if len(t) > 1 else float(default)
-    return float(f"{rate:.9g}")
 
 
 def _f3(Vt, a: np.ndarray):

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FileFormatError, InputError, RenderError
+from ..units import up_axis
 
 BUNDLE = Path(__file__).with_name("_viewer") / "viewer.js"
 """The JavaScript bundle written by ``make viewer`` (esbuild of three.js and main.js)."""
@@ -195,8 +196,7 @@ def write_viewer(modes, path, *, amplitude: float | None = None, up: str = "z", 
     path = Path(path)
     if path.suffix.lower() not in (".html", ".htm"):
         raise InputError(f"the viewer is an .html page, got {path.name!r}")
-    if up not in ("x", "y", "z"):
-        raise InputError(f"up must be 'x', 'y' or 'z', got {up!r}")
+    up_axis(up)
     basis = _load(modes, what="mode file")                  # the input's faults first, then the machine's
     if isinstance(basis, Animation):
         raise InputError("sc-fem view plays mode files; export an animation with sc-fem export instead")
