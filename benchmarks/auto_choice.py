@@ -49,7 +49,8 @@ def main(argv=None) -> int:
     from sc_fem.fem.eigen import solve_eigen
     from sc_fem.fem.options import choose_method, predicted_seconds
     from sc_fem.fem.rigid import rigid_body_modes
-    from sc_fem.fem.static import lattice_aggregates, node_parts
+    from sc_fem.fem.multigrid import lattice_aggregates
+    from sc_fem.fem.static import node_parts
 
     rows, records = [], []
     for label, mesh, resolutions, scale in shapes(args.quick):

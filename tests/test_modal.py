@@ -322,7 +322,7 @@ def test_block_v_cycle_is_the_column_v_cycle_symmetric_and_positive():
     column, and is symmetric positive definite (LOBPCG needs an SPD preconditioner), with pyamg's
     aggregation and with lattice-block aggregates."""
     from sc_fem.fem.multigrid import LatticeAMG
-    from sc_fem.fem.static import lattice_aggregates
+    from sc_fem.fem.multigrid import lattice_aggregates
 
     m = CubeModel.box((24, 4, 4), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
     asm = Assembler(m, "q1i", fixed_dofs=np.arange(3 * 25))

@@ -29,7 +29,8 @@ from ..lattice.cubes import CubeModel
 from ..fem.options import DynamicOptions
 from ..fem.linsolve import MassSolver, SystemSolver, factorize
 from ..fem.rigid import rigid_body_modes
-from ..fem.static import lattice_aggregates, node_parts
+from ..fem.multigrid import lattice_aggregates
+from ..fem.static import node_parts
 from .contact import Contact
 from .loads import LoadSet
 from .state import Energy, State
@@ -285,8 +286,7 @@ class AssembledIntegrator(TimeIntegrator):
 
     # ------------------------------------------------------------------ helpers
     def _linear_solver(self, A: sp.spmatrix) -> SystemSolver:
-        """Solver of ``A x = b`` (``A`` SPD on the free DOFs, e.g. an effective matrix) chosen by
-        :attr:`solver_options`: direct, or CG + AMG with the lattice's rigid modes and aggregates."""
+        """Solver of ``A x = b`` (``A`` SPD, free DOFs) by :attr:`solver_options`: direct or CG + AMG."""
         if self._amg_data is None:                   # the AMG's near-null space and finest aggregates
             fd, m = self.asm.free_dofs, self.model
             self._amg_data = (rigid_body_modes(m.nodes_m, fd), lattice_aggregates(m, node_parts(m), fd))

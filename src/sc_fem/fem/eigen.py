@@ -191,7 +191,7 @@ class EigenSolver:
         Rigid-body modes for the AMG near-null space (LOBPCG); default: the translations.
     aggregates : ndarray of int, shape (n // 3,), optional
         The AMG's finest aggregates, one per DOF node (LOBPCG; e.g.
-        :func:`sc_fem.fem.static.lattice_aggregates`); default: pyamg's standard aggregation.
+        :func:`sc_fem.fem.multigrid.lattice_aggregates`); default: pyamg's standard aggregation.
     tol : float
         ARPACK tolerance (0 = machine precision).
     lobpcg_tol, maxiter : float, int
@@ -430,7 +430,7 @@ def solve_eigen(K: sp.spmatrix, M: sp.spmatrix, k: int, *, method: str = "auto",
         Rigid-body modes for the AMG near-null space (LOBPCG); default: the translations.
     aggregates : ndarray of int, shape (n // 3,), optional
         The AMG's finest aggregates, one per DOF node (LOBPCG; e.g.
-        :func:`sc_fem.fem.static.lattice_aggregates`); default: pyamg's standard aggregation.
+        :func:`sc_fem.fem.multigrid.lattice_aggregates`); default: pyamg's standard aggregation.
     tol : float
         ARPACK tolerance (0 = machine precision).
     lobpcg_tol, maxiter : float, int

@@ -230,7 +230,7 @@ class SystemSolver:
         What to do, appended to the error of a CG that failed.
     near_null, aggregates : ndarray, optional
         The AMG's near-null space (n, k) and finest aggregates (n // 3,) (the rigid modes and
-        :func:`sc_fem.fem.static.lattice_aggregates`); default the 3 translations and pyamg's aggregation.
+        :func:`sc_fem.fem.multigrid.lattice_aggregates`); default the 3 translations and pyamg's aggregation.
 
     Attributes
     ----------

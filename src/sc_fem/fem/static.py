@@ -7,7 +7,7 @@ forces on arbitrary points such as source-mesh vertices, mapped to the nodes wit
 reduced system is solved by a sparse Cholesky factorization (:func:`sc_fem.fem.linsolve.factorize`)
 or, for large models, by conjugate gradients preconditioned with algebraic multigrid
 (:class:`sc_fem.fem.multigrid.LatticeAMG`; the choice: :class:`~sc_fem.fem.options.StaticOptions`).
-The AMG's finest aggregates are blocks of :data:`AGGREGATE_WIDTH` ^3 lattice nodes of one part.
+The AMG's finest aggregates are blocks of lattice nodes of one part (:func:`sc_fem.fem.multigrid.lattice_aggregates`).
 
 A part of the model that is not held (no fixed node, or fixed nodes that leave a rigid motion
 free, e.g. one node or nodes on one line) and carries load raises
@@ -35,6 +35,7 @@ from ..errors import BoundaryConditionError, InputError, SolverError
 from ..lattice.cubes import CubeModel
 from ..scene import Scene
 from .linsolve import factorize
+from .multigrid import lattice_aggregates
 from .options import StaticOptions, choose_static_solver
 
 
@@ -266,25 +267,6 @@ def solve_static(scene: Scene, *, element: str = DEFAULT_ELEMENT, forces: ArrayL
         vu = None if W is None else np.asarray(W @ u)
     return StaticResult(u, vu, f, fixed, len(floating), element, backend_used, res, t,
                         compliance=float(b @ x), solver=how, info=info)
-
-
-AGGREGATE_WIDTH = 4
-"""The AMG's finest aggregates are the free nodes of one part in each block of ``4 x 4 x 4``
-lattice nodes. On the clamped bunny at r64 they took 20 CG iterations where pyamg's standard
-aggregation of the same matrix took 25 (3 x 3 x 3 blocks: 22), with a coarse level half as large."""
-
-
-def lattice_aggregates(model: CubeModel, labels: np.ndarray, free_dofs: np.ndarray) -> np.ndarray | None:
-    """Aggregate of every free node (blocks of :data:`AGGREGATE_WIDTH` ^3 lattice nodes, split by
-    part ``labels``), shape (len(free_dofs) // 3,); None when the free DOFs are not whole nodes."""
-    trip = free_dofs.reshape(-1, 3) if len(free_dofs) % 3 == 0 else None
-    if trip is None or np.any(trip % 3 != np.arange(3)) or np.any(trip // 3 != trip[:, :1] // 3):
-        return None
-    free = free_dofs[0::3] // 3
-    cell = model.node_index[free].astype(np.int64) // AGGREGATE_WIDTH
-    span = cell.max(axis=0) + 1
-    key = ((cell[:, 0] * span[1] + cell[:, 1]) * span[2] + cell[:, 2]) * (int(labels.max()) + 1) + labels[free]
-    return np.unique(key, return_inverse=True)[1].reshape(-1)
 
 
 def _solve_cg_amg(K: sp.csr_matrix, b: np.ndarray, nodes: np.ndarray, free_dofs: np.ndarray,

@@ -19,7 +19,8 @@ from ..fem.assemble import Assembler
 from ..fem.eigen import EigenSolver
 from ..fem.highorder import DEGREES, HighOrderAssembler, HighOrderCubes
 from ..fem.rigid import rigid_body_modes
-from ..fem.static import held_parts, lattice_aggregates, node_parts
+from ..fem.multigrid import lattice_aggregates
+from ..fem.static import held_parts, node_parts
 from ..lattice.cubes import CubeModel
 from .basis import ModalBasis
 from .options import ModalRequest
