@@ -4,7 +4,6 @@ source mesh's vertex animation (:func:`sc_fem.io.simulation.simulate_to_file`)."
 from __future__ import annotations
 
 from .._validate import positive_scalar
-from ..errors import InputError
 from ..units import gravity_down
 from .common import (add_element_arg, add_fix_args, add_grid_args, add_impulse_arg, add_material_args, add_mesh_arg,
                      add_quiet, add_up_arg, command, finish, fix_options, impulse_arg, voxel_options)
@@ -46,6 +45,9 @@ def register(sub) -> None:
     p.add_argument("--beta", type=float, default=None, help="Newmark beta (default 1/4, or the HHT value)")
     p.add_argument("--gamma", type=float, default=None, help="Newmark gamma (default 1/2, or the HHT value)")
     p.add_argument("--hht-alpha", type=float, default=0.0, help="HHT alpha in [-1/3, 0] (numerical damping)")
+    p.add_argument("--linear-solver", dest="solver", choices=("auto", "direct", "cg-amg"), default="auto",
+                   help="linear systems of newmark/corotational/ipc: direct (sparse Cholesky), cg-amg (conjugate "
+                        "gradients + lattice multigrid) or auto (default: direct below 100,000 free DOFs)")
     p.add_argument("--rayleigh", type=float, nargs=2, default=(0.0, 0.0), metavar=("A0", "A1"),
                    help="Rayleigh damping C = A0 M + A1 K (A0 in 1/s, A1 in s)")
     p.add_argument("--gravity", action="store_true", help="gravity 9.81 m/s^2 down the --up axis (default -z)")
@@ -70,20 +72,16 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..dynamics.job import NewmarkOptions, XPBDOptions
+    from ..dynamics.job import NewmarkOptions, XPBDOptions, frame_steps
     from ..io.simulation import simulate_to_file
 
     for name, flag in (("duration", "--duration"), ("dt", "--dt"), ("fps", "--fps"), ("magnify", "--exaggerate")):
         if getattr(args, name) is not None:
             positive_scalar(getattr(args, name), flag)      # checked before any work, named as typed
-    if args.dt is not None and int(round(args.duration / args.dt)) < 1:
-        raise InputError(f"--duration {args.duration:g} s is shorter than one step of --dt {args.dt:g} s")
-    ratio = None if args.dt is None or args.method == "xpbd" else 1.0 / (args.fps * args.dt)
-    if ratio is not None and abs(ratio - max(1, round(ratio))) > 1e-6 * ratio:
-        raise InputError(f"--dt {args.dt:g} s does not divide the frame step 1/--fps = {1 / args.fps:.6g} s "
-                         f"(the frames would not be stored at {args.fps:g} fps): give a --dt that divides it")
+    if args.dt is not None and args.method != "xpbd":       # before any work (xpbd's dt is its frame step)
+        frame_steps(args.duration, args.dt, args.fps)
     same = ("dt", "method", "gust", "ground", "sphere", "box", "velocity", "friction", "self_contact", "rayleigh",
-            "element", "up")                               # run_simulation's keywords spelled as the options
+            "element", "up", "solver")                     # run_simulation's keywords spelled as the options
     return finish(args, simulate_to_file(
         args.mesh, args.output, duration=args.duration, fps=args.fps, voxel=voxel_options(args), **fix_options(args),
         exaggerate=args.magnify, verbose=not args.quiet, progress=not (args.quiet or args.no_progress),

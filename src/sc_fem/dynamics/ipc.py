@@ -95,7 +95,7 @@ class IPC(AssembledIntegrator):
 
     name = "ipc"
     implicit = True
-    supports = AssembledIntegrator.supports | {"friction"}
+    supports = AssembledIntegrator.supports | {"friction", "solver"}
     convergence_hint = "use a smaller dt"
 
     @classmethod

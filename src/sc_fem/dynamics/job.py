@@ -10,6 +10,7 @@ import numpy as np
 
 from .._validate import as_float_array, positive_scalar
 from ..errors import InputError
+from ..fem.options import DynamicOptions
 from ..units import up_axis
 from .newmark import NewmarkOptions
 from .xpbd import XPBDOptions
@@ -24,7 +25,7 @@ run is flagged."""
 
 OPTIONS = {"gust": "loads", "impulse": "impulses", "velocity": "velocity", "ground": "contact",
            "sphere": "contact", "box": "contact", "rayleigh": "rayleigh", "beta/gamma/hht-alpha": "newmark",
-           "substeps/iterations/constraints/xpbd-damping": "substeps"}
+           "substeps/iterations/constraints/xpbd-damping": "substeps", "linear solver": "solver"}
 """The options of :func:`run_simulation` that a method must support, and the feature
 (:attr:`~sc_fem.dynamics.base.TimeIntegrator.supports`) each needs; gravity and fixed nodes every
 method takes."""
@@ -71,11 +72,38 @@ def default_dt(method: str, fps: float) -> float:
     return 1.0 / (fps * (METHODS[method].steps_per_frame or 2))
 
 
+def frame_steps(duration: float, dt: float, fps: float) -> tuple[int, int]:
+    """The steps of a run and the steps between stored frames: an error unless ``dt`` divides the
+    frame step ``1 / fps`` (the frames would be stored at another rate) and the run has a step.
+
+    Parameters
+    ----------
+    duration, dt : float
+        Simulated time and time step, s.
+    fps : float
+        Frames per second stored.
+
+    Returns
+    -------
+    n_steps, every : int
+    """
+    n_steps = int(round(duration / dt))
+    if n_steps < 1:
+        raise InputError(f"duration {duration:g} s is shorter than one step of dt {dt:g} s")
+    ratio = 1.0 / (fps * dt)
+    every = max(1, int(round(ratio)))
+    if abs(ratio - every) > 1e-6 * ratio:
+        raise InputError(f"dt = {dt:.6g} s does not divide the frame step 1/fps = {1 / fps:.6g} s: it is not a whole "
+                         f"number of time steps (the frames would be stored at {1 / (every * dt):.6g} fps); give a "
+                         f"dt that divides it, e.g. {1 / (fps * every):.6g} s")
+    return n_steps, every
+
+
 def run_simulation(scene, *, duration: float, dt: float | None = None, method: str = "auto", fps: float = 50.0,
                    gravity=None, gust=None, ground=None, sphere=None, box=None, impulses=(),
                    velocity=None, friction: float = 0.3, self_contact: bool = True, rayleigh=(0.0, 0.0), newmark: NewmarkOptions = NewmarkOptions(),
                    xpbd: XPBDOptions = XPBDOptions(), element: str | None = None, up: str = "z",
-                   progress: bool = False):
+                   solver: DynamicOptions | str = "auto", progress: bool = False):
     """Simulate ``scene`` for ``duration`` s and record its source vertices.
 
     Parameters
@@ -117,6 +145,11 @@ def run_simulation(scene, *, duration: float, dt: float | None = None, method: s
     rayleigh : (a0, a1)
         Rayleigh damping ``C = a0 M + a1 K``.
     newmark, xpbd : NewmarkOptions, XPBDOptions
+    solver : DynamicOptions or {"auto", "direct", "cg-amg"}
+        The implicit methods' linear systems (``"newmark"``, ``"corotational"``, ``"ipc"``):
+        sparse Cholesky, or conjugate gradients preconditioned by the lattice multigrid;
+        ``"auto"`` (default, :func:`~sc_fem.fem.options.choose_dynamic_solver`) factorizes below
+        :data:`~sc_fem.fem.options.DYNAMIC_CG_MIN_DOFS` free DOFs. ``info["linear_solver"]`` says which ran.
     element : str, optional
         Element type (default :data:`sc_fem.DEFAULT_ELEMENT`).
     up : {"x", "y", "z"}
@@ -146,7 +179,8 @@ def run_simulation(scene, *, duration: float, dt: float | None = None, method: s
         ("gust", gust is not None), ("impulse", impulses is not None and bool(len(impulses))),
         ("velocity", velocity is not None), ("ground", ground is not None), ("sphere", sphere is not None),
         ("box", box is not None), ("rayleigh", any(rayleigh)), ("beta/gamma/hht-alpha", newmark != NewmarkOptions()),
-        ("substeps/iterations/constraints/xpbd-damping", xpbd != XPBDOptions())) if on])
+        ("substeps/iterations/constraints/xpbd-damping", xpbd != XPBDOptions()),
+        ("linear solver", DynamicOptions.coerce(solver) != DynamicOptions())) if on])
     element = DEFAULT_ELEMENT if element is None else element
     model, verts = scene.model, scene.rest_vertices
     g = None if gravity is None else tuple(as_float_array(gravity, "gravity (m/s^2)", (3,)).tolist())
@@ -170,6 +204,8 @@ def run_simulation(scene, *, duration: float, dt: float | None = None, method: s
                                         self_contact=self_contact)
     if "newmark" in features:
         kw.update(beta=newmark.beta, gamma=newmark.gamma, alpha=newmark.alpha)
+    if "solver" in features:
+        kw["solver"] = solver
     if "substeps" in features:
         kw.update(substeps=xpbd.substeps, iterations=xpbd.iterations, constraints=xpbd.constraints,
                   damping=xpbd.damping)
@@ -182,15 +218,7 @@ def run_simulation(scene, *, duration: float, dt: float | None = None, method: s
     J = impulse_nodes(scene, impulses)
     if J is not None:
         integ.set_velocity_from_impulse(J)
-    n_steps = int(round(duration / dt))
-    if n_steps < 1:
-        raise InputError(f"duration {duration:g} s is shorter than one step of dt {dt:g} s")
-    ratio = 1.0 / (fps * dt)
-    every = max(1, int(round(ratio)))
-    if abs(ratio - every) > 1e-6 * ratio:
-        raise InputError(f"the frame step 1/fps = {1 / fps:.6g} s is not a whole number of time steps dt = {dt:.6g} s "
-                         f"(the frames would be stored at {1 / (every * dt):.6g} fps): give a dt that divides it, "
-                         f"e.g. {1 / (fps * every):.6g} s")
+    n_steps, every = frame_steps(duration, dt, fps)
     # node displacements go into the animation file (the exact lattice map of ``sc-fem reconstruct``)
     # unless they would take more than LATTICE_TRACK_BYTES of memory
     keep_u = (n_steps // every + 1) * model.n_nodes * 24 <= LATTICE_TRACK_BYTES

@@ -75,7 +75,7 @@ class Newmark(AssembledIntegrator):
 
     name = "newmark"
     implicit = True
-    supports = AssembledIntegrator.supports | {"newmark"}
+    supports = AssembledIntegrator.supports | {"newmark", "solver"}
     iterations = 1
 
     def __init__(self, model: CubeModel, dt: float, *, beta: float | None = NewmarkOptions.beta,
