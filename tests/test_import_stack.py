@@ -21,7 +21,7 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 PKG = SRC / "sc_fem"
 
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("errors", "_lazy", "_validate", "_atomic", "_jit", "_memory", "_log", "units", "material"),
+    ("errors", "_lazy", "_validate", "_atomic", "_jit", "_memory", "_log", "_progress", "units", "material"),
     ("geometry",),
     ("lattice",),
     ("scene",),

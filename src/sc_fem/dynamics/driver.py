@@ -35,13 +35,13 @@ Units: SI. Displacements ``u`` in metres at the lattice nodes, shape (m, 3).
 from __future__ import annotations
 
 import math
-import sys
 import time as _time
 from dataclasses import dataclass, field, replace
 from typing import Any, Iterator
 
 import numpy as np
 
+from .._progress import stage_bar
 from ..errors import InputError, InstabilityError
 from ..lattice.cubes import CubeModel
 from .base import TimeIntegrator
@@ -122,7 +122,8 @@ def simulate(integrator: TimeIntegrator, n_steps: int, *, every: int = 1, check:
     growth : float
         Blow-up threshold, a multiple of the initial energy scale (see above).
     progress : bool
-        Show a progress bar on stderr (needs tqdm).
+        Show a progress bar on stderr (:func:`sc_fem._progress.stage_bar`; ``False`` also keeps
+        the stages inside a step, e.g. a long re-assembly, from drawing theirs).
 
     Yields
     ------
@@ -146,11 +147,7 @@ def simulate(integrator: TimeIntegrator, n_steps: int, *, every: int = 1, check:
     f_prev = _nonconservative(loads, st.time)
     u_prev = st.u
     yield replace(st, energy=e.total, mechanical=e.mechanical, parts=e, work=0.0)
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=n_steps, desc=integrator.name, unit="step", file=sys.stderr, mininterval=0.5)
+    bar = stage_bar(integrator.name, n_steps, unit="step", enabled=progress)
     try:
         for k in range(1, n_steps + 1):
             out = k % every == 0 or k == n_steps
@@ -172,13 +169,11 @@ def simulate(integrator: TimeIntegrator, n_steps: int, *, every: int = 1, check:
                         integrator, st.time, k,
                         f"energy {e.mechanical:.4g} J grew beyond {growth:g} x (initial energy + load work + "
                         f"gravity potential) = {bound:.4g} J"))
-            if bar is not None:
-                bar.update()
+            bar.update()
             if out:
                 yield replace(st, energy=e.total, mechanical=e.mechanical, parts=e, work=work)
     finally:
-        if bar is not None:
-            bar.close()
+        bar.close()
 
 
 def _nonconservative(loads, t: float) -> np.ndarray:

@@ -34,6 +34,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
 
+from .._progress import stage_bar
 from .._validate import as_float_array, as_indices
 from .generic import assemble_skfem
 from .elements import (DEFAULT_ELEMENT, check_element, cube_mass_chunks, cube_stiffness_chunks,
@@ -249,8 +250,9 @@ class Assembler:
         return slot
 
     # ------------------------------------------------------------------ assembly
-    def _scatter(self, values_of_chunk, refill: bool = False) -> sp.csr_matrix:
-        """Sum the element entries of every chunk of cubes into a new ``data`` array, in place."""
+    def _scatter(self, values_of_chunk, refill: bool = False, matrix: str = "K") -> sp.csr_matrix:
+        """Sum the element entries of every chunk of cubes into a new ``data`` array, in place; a
+        progress bar over the cubes (:func:`~sc_fem._progress.stage_bar`) names the ``matrix``."""
         data = np.zeros(self.nnz)
         n = self.model.n_cubes
         store = self._cache is not None and (self._cache_all or refill)
@@ -259,28 +261,30 @@ class Assembler:
             from . import assemble_jit as jit
 
             hexes = np.ascontiguousarray(self.model.hexes)
-        for s in range(0, n, _CHUNK):                                 # loop over chunks
-            e = min(s + _CHUNK, n)
-            got = None if self._cache is None else self._cache.get((s, e))
-            vals = np.asarray(values_of_chunk(s, e)).reshape(e - s, 576)
-            if jit is not None:
-                vals = np.ascontiguousarray(vals, dtype=np.float64)
-                if got is None and not store:                         # positions computed inline
-                    jit.fill(data, vals, hexes, s, self._interior, self._rowstart, self._coloff, self._free3,
-                             _PAIR_OFFSET, _INTERIOR)
-                    continue
-            if got is None:
-                slot, keep = self._slots(s, e)
-                got = (slot.ravel(), None) if keep is None else (slot[keep], keep)
-                if store:
-                    self._cache[(s, e)] = got
-            slot, keep = got
-            if jit is None:
-                np.add.at(data, slot, vals.ravel() if keep is None else vals[keep])
-            elif keep is None:
-                jit.add_at(data, slot, vals.ravel())
-            else:
-                jit.add_at_masked(data, slot, vals.ravel(), keep.ravel())
+        with stage_bar(f"assemble {matrix}", n, unit="cube") as bar:
+            for s in range(0, n, _CHUNK):                             # loop over chunks
+                e = min(s + _CHUNK, n)
+                got = None if self._cache is None else self._cache.get((s, e))
+                vals = np.asarray(values_of_chunk(s, e)).reshape(e - s, 576)
+                bar.update(e - s)
+                if jit is not None:
+                    vals = np.ascontiguousarray(vals, dtype=np.float64)
+                    if got is None and not store:                     # positions computed inline
+                        jit.fill(data, vals, hexes, s, self._interior, self._rowstart, self._coloff, self._free3,
+                                 _PAIR_OFFSET, _INTERIOR)
+                        continue
+                if got is None:
+                    slot, keep = self._slots(s, e)
+                    got = (slot.ravel(), None) if keep is None else (slot[keep], keep)
+                    if store:
+                        self._cache[(s, e)] = got
+                slot, keep = got
+                if jit is None:
+                    np.add.at(data, slot, vals.ravel() if keep is None else vals[keep])
+                elif keep is None:
+                    jit.add_at(data, slot, vals.ravel())
+                else:
+                    jit.add_at_masked(data, slot, vals.ravel(), keep.ravel())
         return sp.csr_matrix((data, self.indices, self.indptr), shape=self.shape, copy=False)
 
     def stiffness(self, youngs: ArrayLike | None = None, poisson: ArrayLike | None = None,
@@ -341,7 +345,7 @@ class Assembler:
         if lumped:
             nm = self.model.node_masses(mass)
             return sp.diags(np.repeat(nm, 3)[self.free_dofs]).tocsr()
-        return self._scatter(cube_mass_chunks(self.model, mass))   # partial cubes: like their filled region
+        return self._scatter(cube_mass_chunks(self.model, mass), matrix="M")   # partial cubes: like their filled region
 
     # ------------------------------------------------------------------ helpers
     def expand(self, u_free: np.ndarray) -> np.ndarray:

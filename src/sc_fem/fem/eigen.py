@@ -233,29 +233,30 @@ class EigenSolver:
         self.method, self.backend, self.reason = method, backend, ""
         self._auto, self._requested_backend = False, backend
         self.near_null, self.aggregates = near_null, aggregates
-        self.tol, self.lobpcg_tol, self.maxiter = tol, lobpcg_tol, maxiter
-        self.max_memory, self.seed = max_memory, seed
-        self.n_setups = 0
+        self.tol, self.lobpcg_tol, self.maxiter, self.max_memory, self.seed = tol, lobpcg_tol, maxiter, max_memory, seed
+        self.n_setups, self._setup_seconds, self._info = 0, 0.0, {}
         self._op = None                       # OPinv (shift-invert) or the V-cycle (LOBPCG)
-        self._setup_seconds = 0.0
-        self._info: dict = {}
+        self._shifted = self._analysis = None  # K - sigma M and its fill (FillAnalysis), from _setup to _build
 
     def _setup(self, k: int) -> None:
-        if self.method == "auto":
-            self.method, self.reason = choose_method(self.n, self.K.nnz, k, self.max_memory)
-            self._auto = True
-        else:
-            self.reason = "requested"
+        from .options import fill_analysis, predicted_seconds
+
+        self._shifted, self.reason = shifted(self.K, self.M, self.sigma), "requested"
+        if self.method == "auto":     # shift-invert predicted from the fill of K - sigma M (CHOLMOD + numba)
+            self._analysis = a = fill_analysis(self._shifted, self.backend)
+            self.method, self.reason = choose_method(self.n, self.K.nnz, k, self.max_memory, a)
+            self._auto, self._setup_seconds = True, a.seconds if a is not None else 0.0
+            self._info["predicted_seconds"] = {m: predicted_seconds(m, self.n, k, a) for m in METHODS[1:]}
         self._build()
 
     def _build(self) -> None:
         """The factorization of ``K - sigma M`` (shift-invert) or the AMG hierarchy (LOBPCG)."""
         t0 = time.perf_counter()
-        A = shifted(self.K, self.M, self.sigma)
+        A, self._shifted = (self._shifted if self._shifted is not None else shifted(self.K, self.M, self.sigma)), None
         if self.method == "shift-invert":
             from .linsolve import factorize
 
-            fac = factorize(A, self.backend)
+            fac = factorize(A, self.backend, self._analysis)     # CHOLMOD reuses the ordering of _setup
             self.backend = fac.backend
             self._op = LinearOperator(A.shape, matvec=fac.solve, matmat=fac.solve, dtype=np.float64)
         else:
@@ -264,10 +265,9 @@ class EigenSolver:
             amg = LatticeAMG(A, self.near_null, aggregates=self.aggregates, blocksize=bs, seed=self.seed)
             del A
             self._products = amg.levels[0], BlockProduct(self.M)       # K - sigma M as node blocks, and M
-            self._op = amg.operator()
-            self.backend = "pyamg"             # pyamg aggregation and tentative prolongator
+            self._op, self.backend = amg.operator(), "pyamg"      # pyamg aggregation and tentative prolongator
             self._info["levels"] = len(amg.levels)
-        self._info["factor_memory_estimate"] = factor_memory_estimate(self.n, self.K.nnz)
+        self._info["factor_memory_estimate"] = factor_memory_estimate(self.n, self.K.nnz, self._analysis)
         self.n_setups += 1
         self._setup_seconds += time.perf_counter() - t0
         what = f"{self.backend} factorization" if self.method == "shift-invert" else f"AMG hierarchy ({self._info['levels']} levels)"
@@ -294,13 +294,15 @@ class EigenSolver:
         self._build()
 
     def _eigsh(self, k: int) -> tuple[np.ndarray, dict]:
-        v0 = np.random.default_rng(self.seed).standard_normal(self.n)
-        ncv = min(self.n, max(2 * k + 1, k + 20))
-        try:
-            _, X = eigsh(self.K, k=k, M=self.M, sigma=self.sigma, which="LM", OPinv=self._op, tol=self.tol,
-                         v0=v0, ncv=ncv, mode="normal")
-        except Exception as exc:  # ARPACK errors carry partial results; report them as solver errors
-            raise SolverError(f"eigsh (shift-invert, {self.backend}) failed: {exc}") from None
+        from .._progress import counting, stage_bar
+
+        v0, ncv = np.random.default_rng(self.seed).standard_normal(self.n), min(self.n, max(2 * k + 1, k + 20))
+        with stage_bar("eigensolve (shift-invert)", unit="solve") as bar:     # counts the solves with K - sigma M
+            try:
+                _, X = eigsh(self.K, k=k, M=self.M, sigma=self.sigma, which="LM", OPinv=counting(bar, self._op),
+                             tol=self.tol, v0=v0, ncv=ncv, mode="normal")
+            except Exception as exc:  # ARPACK errors carry partial results; report them as solver errors
+                raise SolverError(f"eigsh (shift-invert, {self.backend}) failed: {exc}") from None
         return X, {}
 
     def _lobpcg(self, k: int) -> tuple[np.ndarray, dict]:
@@ -308,16 +310,16 @@ class EigenSolver:
 
         from scipy.sparse.linalg import lobpcg
 
-        B = self.near_null
         m = min(self.n - 1, k + max(4, k // 4))   # a few extra vectors speed convergence
         X = np.random.default_rng(self.seed).standard_normal((self.n, m))
-        if B is not None:                          # start in the rigid space: those modes converge at once
+        if (B := self.near_null) is not None:      # start in the rigid space: those modes converge at once
             X[:, :min(B.shape[1], m)] = B[:, :min(B.shape[1], m)]
         from .._jit import blas_single_threaded
+        from .._progress import counting, stage_bar
 
         Ap, Mp = self._products
         A_op = LinearOperator(Ap.A.shape, matvec=Ap, matmat=Ap, dtype=np.float64)
-        with warnings.catch_warnings(), blas_single_threaded():
+        with warnings.catch_warnings(), blas_single_threaded(), stage_bar("eigensolve (LOBPCG)") as bar:
             warnings.simplefilter("ignore")        # lobpcg warns when it stops at maxiter; we report residuals
             # lobpcg's tol is absolute on ||A x - mu M x|| (x M-normalized): scale it by the shift, the
             # smallest eigenvalue scale we know, times the typical ||M x|| ~ sqrt(mean diag M)
@@ -337,17 +339,15 @@ class EigenSolver:
             # A round whose residual reduction, kept up, would not reach the tolerance within
             # maxiter ends the solve too ("slow"): on the bridge at resolution 128 the second round
             # cut the residual by 1 % (the cantilevers' rounds cut it 3x or more).
-            its = rounds = stalls = 0
-            stop, prev = "converged", None
+            its, rounds, stalls, stop, prev = 0, 0, 0, "converged", None
             while True:
                 asked = min(LOBPCG_ROUNDS[rounds > 0], self.maxiter - its)
-                lam, V, hist = lobpcg(A_op, X, B=Mp.operator(), M=self._op, tol=tol_abs, maxiter=asked,
-                                      largest=False, retResidualNormsHistory=True)
+                lam, V, hist = lobpcg(A_op, X, B=Mp.operator(), M=counting(bar, self._op, tol_abs, (k, m)),
+                                      tol=tol_abs, maxiter=asked, largest=False, retResidualNormsHistory=True)
                 its, rounds = its + len(hist), rounds + 1
                 stalled = len(hist) < asked            # it ended the round before maxiter on its own
                 stalls += stalled
-                order = np.argsort(lam)
-                lam, V = lam[order], V[:, order]
+                lam, V = np.sort(lam), V[:, np.argsort(lam)]
                 R = Ap(V[:, :k]) - Mp(V[:, :k]) * lam[None, :k]
                 worst = float(np.linalg.norm(R, axis=0).max()) / tol_abs
                 _LOG.info(f"    LOBPCG round {rounds}: {its} iterations, largest residual {worst:.3g} x the tolerance")

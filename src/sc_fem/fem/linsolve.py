@@ -62,6 +62,9 @@ class Factorization:
         Symmetric positive definite (e.g. a stiffness matrix in N/m); only symmetry is assumed.
     backend : {"auto", "cholmod", "cholespy", "splu"}
         ``"auto"``: the first installed of :data:`BACKENDS`.
+    analysis : FillAnalysis, optional
+        CHOLMOD's symbolic analysis of ``A``'s pattern (:func:`sc_fem.fem.fill.analyze_fill`):
+        reused by the ``"cholmod"`` backend instead of ordering ``A`` again.
 
     Raises
     ------
@@ -78,7 +81,7 @@ class Factorization:
         Wall time of the factorization.
     """
 
-    def __init__(self, A: sp.spmatrix, backend: str = "auto") -> None:
+    def __init__(self, A: sp.spmatrix, backend: str = "auto", analysis: object | None = None) -> None:
         if not sp.issparse(A):
             raise InputError(f"A must be a scipy.sparse matrix, got {type(A).__name__}")
         if A.ndim != 2 or A.shape[0] != A.shape[1] or A.shape[0] == 0:
@@ -100,7 +103,8 @@ class Factorization:
             from sksparse.cholmod import CholmodNotPositiveDefiniteError, cholesky
 
             try:
-                self._f = cholesky(A.tocsc())
+                symbolic = getattr(analysis, "factor", None)
+                self._f = cholesky(A.tocsc()) if symbolic is None else symbolic.cholesky(A.tocsc())
             except CholmodNotPositiveDefiniteError:
                 raise SolverError(_singular_message(n, "singular or not positive definite")) from None
             d = self._f.D()
@@ -165,7 +169,7 @@ class Factorization:
         return f"Factorization({self.shape[0]}x{self.shape[1]}, backend={self.backend!r})"
 
 
-def factorize(A: sp.spmatrix, backend: str | None = "auto") -> Factorization:
+def factorize(A: sp.spmatrix, backend: str | None = "auto", analysis: object | None = None) -> Factorization:
     """Factorize a sparse symmetric positive-definite matrix.
 
     Parameters
@@ -175,6 +179,8 @@ def factorize(A: sp.spmatrix, backend: str | None = "auto") -> Factorization:
     backend : {"auto", "cholmod", "cholespy", "splu"}
         ``"auto"`` (default; overridable with the environment variable ``SC_FEM_SOLVER``) picks
         the first installed of CHOLMOD (scikit-sparse), cholespy, SciPy ``splu``.
+    analysis : FillAnalysis, optional
+        The symbolic analysis of ``A`` (:func:`sc_fem.fem.fill.analyze_fill`), reused by CHOLMOD.
 
     Returns
     -------
@@ -188,7 +194,7 @@ def factorize(A: sp.spmatrix, backend: str | None = "auto") -> Factorization:
     """
     if backend in (None, "auto"):
         backend = os.environ.get("SC_FEM_SOLVER", "auto") or "auto"
-    return Factorization(A, backend)
+    return Factorization(A, backend, analysis)
 
 
 REFRESH_GROWTH = (1.5, 4)

@@ -2,18 +2,28 @@
 (:class:`EigenOptions`) and the automatic choice of method (:func:`choose_method`), and the options
 of :func:`sc_fem.solve_static`'s linear solve (:class:`StaticOptions`, :func:`choose_static_solver`).
 
-``method="auto"`` predicts both solvers' times from :data:`SPEED_MODEL` (calibrated by
-``benchmarks/scale.py``) and their memory (:func:`factor_memory_estimate`,
-:func:`lobpcg_memory_estimate`), and takes the faster one that fits the budget
-(:func:`memory_budget`: ``max_memory``, default half the available memory). The solvers
-themselves are in :mod:`sc_fem.fem.eigen`.
+``method="auto"`` predicts both solvers' times (:func:`predicted_seconds`) and memory
+(:func:`factor_memory_estimate`, :func:`lobpcg_memory_estimate`), and takes the faster one that
+fits the budget (:func:`memory_budget`: ``max_memory``, default half the available memory).
+Shift-invert's time and memory follow from the fill of the matrix itself
+(:func:`~sc_fem.fem.fill.fill_analysis`:
+CHOLMOD's ordering, whose factorization then reuses it), LOBPCG's from a power law in ``n`` that
+the fill corrects for thin members; without CHOLMOD or numba both from :data:`SPEED_MODEL`. The
+solvers themselves are in :mod:`sc_fem.fem.eigen`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from ..errors import InputError, SolverError
+
+# fill_analysis and its size limit are re-exported: the automatic choice's names stay importable from here
+from .fill import FILL_ANALYSIS_MAX_DOFS, fill_analysis  # noqa: F401
+
+if TYPE_CHECKING:
+    from .fill import FillAnalysis
 
 METHODS: tuple[str, ...] = ("auto", "shift-invert", "lobpcg")
 """Names accepted by ``method=``."""
@@ -87,12 +97,16 @@ class EigenOptions:
         return _coerce(cls, value, "eigen")
 
 
-def factor_memory_estimate(n: int, nnz: int) -> int:
+def factor_memory_estimate(n: int, nnz: int, analysis: FillAnalysis | None = None) -> int:
     """Estimated bytes of a sparse Cholesky factorization of an ``n x n`` lattice matrix.
 
+    With a :class:`~sc_fem.fem.fill.FillAnalysis` of the matrix, from its ``nnz(L)``: 8 bytes per
+    value, x1.1 for CHOLMOD's supernodal padding and row indices, plus workspace. Without one,
     ``nnz(L) ~ FILL_CONSTANT * n^(4/3)`` (nested dissection on a 3-D grid), 12 bytes per entry
     (value + index) plus workspace, and never below the matrix itself.
     """
+    if analysis is not None:
+        return int(8.0 * 1.1 * analysis.nnz_l + 16.0 * n)
     nnz_l = max(FILL_CONSTANT * float(n) ** (4.0 / 3.0), 0.5 * nnz)
     return int(12.0 * nnz_l * 1.3 + 16.0 * n)
 
@@ -114,14 +128,41 @@ DOFs; LOBPCG + smoothed-aggregation AMG with scipy's products 2.54 s / 4.57 s / 
 DOFs (~18,000 with numba). LOBPCG's cost also grows with ``k``."""
 
 
-def predicted_seconds(method: str, n: int, k: int) -> float:
-    """Seconds :data:`SPEED_MODEL` predicts for ``k`` modes of ``n`` free DOFs (LOBPCG: with the
-    compiled products when numba is installed)."""
+LOBPCG_OVERHEAD = 0.15
+"""Seconds LOBPCG + AMG takes for 6 pairs beyond :data:`SPEED_MODEL`'s power law (the hierarchy's
+set-up and each iteration's Python work): 0.17 s for 8 pairs of a 432-DOF box, 0.33 s for 16."""
+
+def predicted_seconds(method: str, n: int, k: int, analysis: FillAnalysis | None = None) -> float:
+    """Seconds predicted for ``k`` modes of ``n`` free DOFs.
+
+    Parameters
+    ----------
+    method : {"shift-invert", "lobpcg"}
+        The solver (LOBPCG: with the compiled products when numba is installed).
+    n, k : int
+        Free DOFs and eigenpairs.
+    analysis : FillAnalysis, optional
+        The fill of the shifted matrix (:func:`~sc_fem.fem.fill.analyze_fill`): shift-invert is then
+        predicted from it (:data:`~sc_fem.fem.fill.FILL_SPEED_MODEL`), else from :data:`SPEED_MODEL`'s power law in ``n``.
+
+    Returns
+    -------
+    float
+        Seconds, set-up included.
+    """
     from .._jit import available
 
+    from .fill import LOBPCG_FILL_MODEL, lobpcg_factor, shift_invert_seconds
+
+    if method == "shift-invert" and analysis is not None:
+        return shift_invert_seconds(analysis, k)
     c, p = SPEED_MODEL["lobpcg-numba" if method == "lobpcg" and available() else method]
-    t = c * (max(n, 1) / 7776.0) ** p
-    return t * (max(k, 6) / 6.0 if method == "lobpcg" else 1.0)
+    if method != "lobpcg":
+        return c * (max(n, 1) / 7776.0) ** p
+    thin = 1.0
+    if analysis is not None:                  # the fill's model (fill.LOBPCG_FILL_MODEL)
+        c, thin = LOBPCG_FILL_MODEL["c"], lobpcg_factor(analysis)
+    return (c * (max(n, 1) / 7776.0) ** p * thin + LOBPCG_OVERHEAD) * max(k, 6) / 6.0
 
 
 def memory_budget(max_memory: float | None = None) -> float:
@@ -131,20 +172,40 @@ def memory_budget(max_memory: float | None = None) -> float:
     return 0.5 * available_memory() if max_memory is None else float(max_memory)
 
 
-def choose_method(n: int, nnz: int, k: int, max_memory: float | None = None) -> tuple[str, str]:
+def choose_method(n: int, nnz: int, k: int, max_memory: float | None = None,
+                  analysis: FillAnalysis | None = None) -> tuple[str, str]:
     """``("shift-invert" | "lobpcg", reason)``: the one :func:`predicted_seconds` says is faster,
-    among those whose memory estimate fits the budget (bytes; default half the available memory)."""
+    among those whose memory estimate fits the budget.
+
+    Parameters
+    ----------
+    n, nnz, k : int
+        Free DOFs, nonzeros of ``K`` and eigenpairs.
+    max_memory : float, optional
+        Budget in bytes; default half the available memory.
+    analysis : FillAnalysis, optional
+        The fill of ``K - sigma M`` (:func:`~sc_fem.fem.fill.fill_analysis`): shift-invert's time and memory are
+        then predicted from it.
+
+    Returns
+    -------
+    method : str
+    reason : str
+        Both predicted times (and what shift-invert's came from) and the memory against the budget.
+    """
     budget = memory_budget(max_memory)
-    need = factor_memory_estimate(n, nnz)
+    need = factor_memory_estimate(n, nnz, analysis)
     need_l = lobpcg_memory_estimate(n, nnz, k)
-    t_si, t_l = predicted_seconds("shift-invert", n, k), predicted_seconds("lobpcg", n, k)
+    t_si, t_l = predicted_seconds("shift-invert", n, k, analysis), predicted_seconds("lobpcg", n, k, analysis)
     fits_si, fits_l = need <= budget, need_l <= budget
     if not (fits_si or fits_l):
         raise SolverError(f"the eigenproblem with {n:,} DOFs does not fit in memory: a factorization needs "
                           f"~{need / 2**30:.1f} GiB and LOBPCG ~{need_l / 2**30:.1f} GiB, budget "
                           f"{budget / 2**30:.1f} GiB (half the available memory unless max_memory is given: "
                           f"EigenOptions(max_memory=...)); use a coarser resolution or a larger budget")
-    times = f"predicted {t_si:.3g} s shift-invert vs {t_l:.3g} s LOBPCG + AMG"
+    fill = (f" (fill nnz(L) {analysis.nnz_l:,}, {analysis.flops / 1e9:.3g} Gflop)" if analysis is not None
+            else " (power law in n)")
+    times = f"predicted {t_si:.3g} s shift-invert{fill} vs {t_l:.3g} s LOBPCG + AMG"
     if fits_si and (t_si <= t_l or not fits_l):
         return "shift-invert", (f"{times}; factorization ~{need / 2**20:,.0f} MiB <= budget "
                                 f"{budget / 2**20:,.0f} MiB")

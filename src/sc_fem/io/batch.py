@@ -24,7 +24,6 @@ import io
 import logging
 import os
 import signal
-import sys
 import threading
 import time
 import traceback
@@ -33,6 +32,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from .._atomic import atomic_path
+from .._progress import stage_bar
 from ..errors import InputError
 
 SUMMARY_FIELDS = ("mesh", "status", "output", "seconds", "cubes", "dofs", "n_modes", "f_min_hz", "f_max_hz",
@@ -308,8 +308,6 @@ def run_batch(meshes: Iterable[str], out_dir: str | Path, *, options: dict | Non
         Ctrl-C (a KeyboardInterrupt): the cluster is shut down and the summary written first; it
         lists the mode files completed.
     """
-    from tqdm import tqdm
-
     try:
         from dask.distributed import Client, LocalCluster, as_completed
     except ImportError:
@@ -335,8 +333,7 @@ def run_batch(meshes: Iterable[str], out_dir: str | Path, *, options: dict | Non
     before = {o: _stamp(o) for o in outputs}
     rows: list[dict | None] = [None] * len(meshes)
     if Client is None:
-        bar = tqdm(total=len(meshes), desc="meshes (serial: dask not installed)", unit="mesh",
-                   disable=not progress, file=sys.stderr)
+        bar = stage_bar("meshes (serial: dask not installed)", len(meshes), unit="mesh", enabled=progress, tick=1.0)
         try:
             for i, (m, o) in enumerate(zip(meshes, outputs)):     # loop over input meshes
                 rows[i] = precompute_one(m, o, opts)
@@ -358,7 +355,7 @@ def run_batch(meshes: Iterable[str], out_dir: str | Path, *, options: dict | Non
             cluster = LocalCluster(n_workers=nw, threads_per_worker=1, processes=processes, dashboard_address=None)
             client = Client(cluster)
     interrupted = False
-    bar = tqdm(total=len(meshes), desc="meshes", unit="mesh", disable=not progress, file=sys.stderr)
+    bar = stage_bar("meshes", len(meshes), unit="mesh", enabled=progress, tick=1.0)
     try:
         futures = [client.submit(precompute_one, m, o, opts, key=f"precompute-{i}-{Path(o).stem}", pure=False)
                    for i, (m, o) in enumerate(zip(meshes, outputs))]

@@ -12,7 +12,6 @@ import itertools
 import os
 import re
 import shutil
-import sys
 import tempfile
 import warnings
 from pathlib import Path
@@ -20,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from .._atomic import atomic_path
+from .._progress import stage_bar
 from .._validate import as_float_array, positive_int
 from ..errors import InputError
 from ..units import up_axis
@@ -317,8 +317,6 @@ def render_animation(frames: np.ndarray, faces: np.ndarray, path, *, fps: float 
     if kind not in (".mp4", ".gif", ""):
         raise InputError(f"unsupported animation output {path.name!r}: use .mp4, .gif or a folder")
     pvm = pv()
-    from tqdm import tqdm
-
     mesh = surface_polydata(frames[0].copy(), faces)   # its points are overwritten in place
     stamps = None if times is None else as_float_array(times, "times", (len(frames),))
     lo, hi = frames.min(axis=(0, 1)), frames.max(axis=(0, 1))
@@ -341,14 +339,16 @@ def render_animation(frames: np.ndarray, faces: np.ndarray, path, *, fps: float 
         frame_camera(p, box, up)
         clock = None if stamps is None else _CornerClock(p, f"t = {stamps[0]:.3f} s")
         points = mesh.points                          # a view of the VTK points: written in place
-        with _frame_sink(path, kind, fps) as write:
-            for k in tqdm(range(len(frames)), desc="render", disable=not progress, file=sys.stderr):
+        with (_frame_sink(path, kind, fps) as write,
+              stage_bar("render", len(frames), unit="frame", enabled=progress) as bar):
+            for k in range(len(frames)):                  # loop over frames
                 points[:] = frames[k]
                 mesh.Modified()
                 if clock is not None:
                     clock.set(f"t = {stamps[k]:.3f} s")
                 p.render()                            # no-op before the first screenshot, which renders
                 write(p.screenshot(return_img=True))
+                bar.update()
     finally:
         p.close()
     return path

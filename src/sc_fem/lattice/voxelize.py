@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from .._memory import available_memory
+from .._progress import stage_bar, step
 from ..errors import InputError, ScFemWarning
 from ..geometry.mesh import load_mesh
 from ..geometry.sampling import Samples, grid_counts, surface_grid_samples, surface_random_samples
@@ -36,6 +37,9 @@ DEFAULT_MATERIAL = Material(1.0e7, 0.30, 1000.0, "generic soft solid")
 
 DEFAULT_SHELL_FRACTION = 0.01   # default shell thickness: 1 % of the longest extent
 PLAUSIBLE_SIZE = (1e-3, 1e3)   # metres: outside, voxelize warns that the scale may be wrong
+STAGES = ("load", "sample", "bodies", "fill", "cubes")
+"""The sub-stages of :func:`voxelize` that its progress bar counts: load the mesh, sample its
+surface, find the bodies, fill the solids (the inside tests: the longest), hash samples to cubes."""
 
 
 def _material_defaults(mesh, youngs, poisson, density) -> tuple[Any, Any, Any, str]:
@@ -90,7 +94,15 @@ def voxelize(mesh: Any, options: VoxelOptions | None = None, **fields: Any) -> C
     cube. Cubes the surface only grazes get the small mass of ``1 / (2 subsamples^3)`` of a cube.
     """
     opts = VoxelOptions.coerce(options, **fields)
+    with stage_bar("voxelize", len(STAGES), unit="stage", tick=1.0, rate=False) as bar:
+        step(bar, STAGES[0], 0)
+        return _voxelize(mesh, opts, bar)
+
+
+def _voxelize(mesh: Any, opts: VoxelOptions, bar: Any) -> CubeModel:
+    """:func:`voxelize`, counting its :data:`STAGES` in ``bar``."""
     mesh = load_mesh(mesh)
+    step(bar, STAGES[1])
     vertices = np.asarray(mesh.vertices, dtype=float)
     faces = np.asarray(mesh.faces, dtype=np.int64)
     cloud = len(faces) == 0
@@ -128,9 +140,12 @@ def voxelize(mesh: Any, options: VoxelOptions | None = None, **fields: Any) -> C
     else:
         surf = surface_grid_samples(vertices, faces, spacing)
 
+    step(bar, STAGES[2])
     bodies, face_body, parts = _find_bodies(vertices, faces, opts, longest, cloud)
+    step(bar, STAGES[3])
     samples, sample_body, parts_info, shells, counts = _body_samples(surf, vertices, faces, grid, opts, thick,
                                                                     face_body, bodies, parts)
+    step(bar, STAGES[4])
     E, nu, rho, m = _sample_material(samples, surf, len(faces), youngs, poisson, density, opts)
 
     # ---- hash samples to voxels and accumulate (vectorized: unique + bincount); one cube per body and voxel
@@ -173,5 +188,5 @@ def voxelize(mesh: Any, options: VoxelOptions | None = None, **fields: Any) -> C
     size_m = longest * opts.scale
     if not PLAUSIBLE_SIZE[0] <= size_m <= PLAUSIBLE_SIZE[1]:
         warnings.warn(f"the model is {size_m:.4g} m long (scale={opts.scale:g} metres per model unit): is that "
-                      f"meant? A model in millimetres needs scale=0.001 (--scale 0.001)", ScFemWarning, stacklevel=2)
+                      f"meant? A model in millimetres needs scale=0.001 (--scale 0.001)", ScFemWarning, stacklevel=3)
     return _keep(model, opts.keep, info)

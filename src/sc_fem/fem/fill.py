@@ -1,0 +1,228 @@
+"""How much a sparse Cholesky factorization will fill and cost, known before it is computed.
+
+A factorization's cost is set by its fill, not by the matrix's size: a compact 3-D solid of ``n``
+DOFs fills ``L`` with ~``n^(4/3)`` entries and costs ~``n^2`` flops under nested dissection, a
+thin-walled or many-part model far less (its separators are small). :func:`analyze_fill` takes
+CHOLMOD's fill-reducing ordering of the actual matrix (``sksparse.cholmod.analyze``: the ordering
+and symbolic analysis that the factorization itself starts with) and counts the nonzeros of each
+column of ``L`` from the elimination tree (:func:`column_counts`, compiled with numba), giving
+``nnz(L)`` and the flops of the numeric factorization. The analyzed CHOLMOD factor is kept, so a
+factorization that follows (:func:`sc_fem.fem.linsolve.factorize` with ``analysis=``) does not
+order the matrix a second time. From the fill follow shift-invert's predicted time
+(:func:`shift_invert_seconds`, :data:`FILL_SPEED_MODEL`) and memory
+(:func:`sc_fem.fem.options.factor_memory_estimate`), and how much longer than on a compact solid
+LOBPCG is predicted to take on a thin one (:func:`lobpcg_factor`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from .._jit import compiled
+
+
+def _column_counts(indptr: np.ndarray, indices: np.ndarray, perm: np.ndarray) -> np.ndarray:
+    n = len(perm)
+    invp = np.empty(n, np.int64)
+    for k in range(n):
+        invp[perm[k]] = k
+    parent = np.full(n, -1, np.int64)      # the elimination tree (Liu's algorithm, path compression)
+    ancestor = np.full(n, -1, np.int64)
+    for k in range(n):
+        c = perm[k]
+        for p in range(indptr[c], indptr[c + 1]):
+            i = invp[indices[p]]
+            while i != -1 and i < k:
+                nxt = ancestor[i]
+                ancestor[i] = k
+                if nxt == -1:
+                    parent[i] = k
+                i = nxt
+    mark = np.full(n, -1, np.int64)        # row k of L: the tree paths from A's row k up to k
+    counts = np.ones(n, np.int64)
+    for k in range(n):
+        mark[k] = k
+        c = perm[k]
+        for p in range(indptr[c], indptr[c + 1]):
+            i = invp[indices[p]]
+            while i < k and mark[i] != k:
+                counts[i] += 1
+                mark[i] = k
+                i = parent[i]
+    return counts
+
+
+_column_counts_jit = compiled(_column_counts)
+
+
+def column_counts(A: sp.spmatrix, perm: np.ndarray) -> np.ndarray | None:
+    """Nonzeros of each column of the Cholesky factor ``L`` of ``A[perm][:, perm]`` (diagonal included).
+
+    Parameters
+    ----------
+    A : scipy.sparse matrix, shape (n, n)
+        Structurally symmetric (only its pattern is read).
+    perm : ndarray of int, shape (n,)
+        The elimination order (e.g. CHOLMOD's ``Factor.P()``).
+
+    Returns
+    -------
+    ndarray of int64, shape (n,), or None
+        Column counts in elimination order (``sum`` = ``nnz(L)``); None without numba (the
+        elimination tree is a sequential walk that numpy cannot vectorize).
+    """
+    if _column_counts_jit is None:
+        return None
+    A = sp.csc_matrix(A)
+    return _column_counts_jit(A.indptr.astype(np.int64), A.indices.astype(np.int64),
+                              np.asarray(perm, dtype=np.int64))
+
+
+@dataclass(frozen=True, eq=False)
+class FillAnalysis:
+    """The fill of a sparse Cholesky factorization, from its symbolic analysis.
+
+    Attributes
+    ----------
+    n : int
+        Rows of the matrix.
+    nnz_l : int
+        Nonzeros of the factor ``L`` (lower triangle, diagonal included), without the explicit
+        zeros CHOLMOD's supernodes add (3-6 % more on the lattice models measured).
+    flops : float
+        ``sum_j c_j^2`` over the column counts ``c_j``: the numeric factorization's floating-point
+        operations (the leading term of the count).
+    seconds : float
+        Wall time of the ordering and the column counts.
+    factor : object or None
+        The analyzed ``sksparse.cholmod.Factor`` (symbolic only), for the factorization to reuse.
+    """
+
+    n: int
+    nnz_l: int
+    flops: float
+    seconds: float
+    factor: object = None
+
+
+def analyze_fill(A: sp.spmatrix, backend: str = "auto") -> FillAnalysis | None:
+    """CHOLMOD's ordering of ``A`` and the fill and flops of its factorization, without factorizing.
+
+    Parameters
+    ----------
+    A : scipy.sparse matrix, shape (n, n)
+        Symmetric (e.g. ``K - sigma M``); the analysis depends on its pattern only.
+    backend : {"auto", "cholmod", "cholespy", "splu"}
+        The factorization backend that would be used (:func:`sc_fem.fem.linsolve.factorize`;
+        ``"auto"`` honours ``SC_FEM_SOLVER``): the analysis is CHOLMOD's, so another backend gets
+        None.
+
+    Returns
+    -------
+    FillAnalysis or None
+        None when the backend is not CHOLMOD (scikit-sparse) or numba is missing.
+    """
+    import os
+
+    from .linsolve import available_backends
+
+    if backend in (None, "auto"):
+        backend = os.environ.get("SC_FEM_SOLVER", "auto") or "auto"
+    if backend == "auto":
+        backend = available_backends()[0]
+    if backend != "cholmod" or _column_counts_jit is None:
+        return None
+    from sksparse.cholmod import analyze
+
+    t0 = time.perf_counter()
+    A = sp.csc_matrix(A, dtype=np.float64)
+    factor = analyze(A)
+    counts = column_counts(A, factor.P()).astype(np.float64)
+    return FillAnalysis(n=A.shape[0], nnz_l=int(counts.sum()), flops=float(np.dot(counts, counts)),
+                        seconds=time.perf_counter() - t0, factor=factor)
+
+
+FILL_SPEED_MODEL = {"flops_per_second": 2.46e9, "seconds_per_entry": 9.7e-9, "seconds_per_dof": 1.6e-7}
+"""Shift-invert's seconds from the fill (:func:`shift_invert_seconds`): the analysis itself,
+``flops / flops_per_second`` (CHOLMOD's numeric factorization) and ``(seconds_per_entry * nnz(L) +
+seconds_per_dof * n) * ncv`` (ARPACK: solves with ``L`` and its own work, growing with its ``ncv =
+max(2k + 1, k + 20)`` Lanczos vectors). Fitted (least squares on the log of taken / predicted) to
+the 10 shapes of ``python benchmarks/auto_choice.py --quick`` (16 pairs; compact, thin-walled and
+many-part, 5,292-76,035 DOFs; CHOLMOD on the reference BLAS, 2 shared cores at load 1.1-1.8,
+2026-11-25): all within 0.83-1.13x. See ``docs/performance.md`` for the shapes it was not fitted to."""
+
+LOBPCG_FILL_MODEL = {"c": 0.43, "q0": 13.0, "beta": 1.0, "cap": 8.0}
+"""LOBPCG + AMG's seconds when the fill is known (:func:`lobpcg_factor`): ``(c * (n / 7776) ** 0.98
+* factor + overhead) * k / 6``, the power law of :data:`sc_fem.fem.options.SPEED_MODEL` for a
+compact solid times ``factor = min((q0 / q) ** beta, cap)`` where ``q = nnz(L) / n^(4/3)`` is below
+``q0``. LOBPCG's iterations grow on thin, slender members, which the lattice multigrid
+preconditions worse, and such models fill little. ``q0, beta`` fitted to the iterations (16 pairs,
+load-independent): compact solids q = 11-19, 23 iterations (the bunny at r40 34); chair and
+armchair q = 6.4-9.1, 45; plate 6.0, 45; I-beam 5.8, 69; table 5.4, 34; truss bridge 3.6-3.8,
+85-139; the toy truck (many parts) 10.9, 45. ``c`` fitted to the times of the ``--quick`` run
+(numba's products: without numba there is no fill analysis)."""
+
+
+def shift_invert_seconds(analysis: FillAnalysis, k: int) -> float:
+    """Seconds shift-invert takes for ``k`` pairs (set-up included), from the fill (:data:`FILL_SPEED_MODEL`).
+
+    Parameters
+    ----------
+    analysis : FillAnalysis
+        The fill of the shifted matrix.
+    k : int
+        Eigenpairs.
+
+    Returns
+    -------
+    float
+    """
+    m, n = FILL_SPEED_MODEL, analysis.n
+    ncv = min(n, max(2 * k + 1, k + 20))
+    return (analysis.seconds + analysis.flops / m["flops_per_second"]
+            + (m["seconds_per_entry"] * analysis.nnz_l + m["seconds_per_dof"] * n) * ncv)
+
+
+def lobpcg_factor(analysis: FillAnalysis) -> float:
+    """How many times a compact solid's iterations LOBPCG is predicted to take (:data:`LOBPCG_FILL_MODEL`).
+
+    Parameters
+    ----------
+    analysis : FillAnalysis
+        The fill of the shifted matrix.
+
+    Returns
+    -------
+    float
+        ``min((q0 / q) ** beta, cap)`` for ``q = nnz(L) / n^(4/3) < q0``, else 1.
+    """
+    m = LOBPCG_FILL_MODEL
+    q = analysis.nnz_l / max(analysis.n, 1) ** (4.0 / 3.0)
+    return float(min(max(m["q0"] / max(q, 1e-12), 1.0) ** m["beta"], m["cap"]))
+
+
+FILL_ANALYSIS_MAX_DOFS = 400_000
+"""``method="auto"`` analyzes the fill (:func:`analyze_fill`) up to this many DOFs;
+above, :data:`SPEED_MODEL`'s power law (the ordering alone would take tens of seconds there)."""
+
+
+def fill_analysis(A: sp.spmatrix, backend: str = "auto") -> FillAnalysis | None:
+    """:func:`analyze_fill` of ``A`` when it has at most :data:`FILL_ANALYSIS_MAX_DOFS` rows.
+
+    Parameters
+    ----------
+    A : scipy.sparse matrix, shape (n, n)
+        The matrix shift-invert would factorize (``K - sigma M``).
+    backend : {"auto", "cholmod", "cholespy", "splu"}
+        Its factorization backend.
+
+    Returns
+    -------
+    FillAnalysis or None
+        None above the size, or without CHOLMOD or numba: the prediction falls back on the power law.
+    """
+    return analyze_fill(A, backend) if A.shape[0] <= FILL_ANALYSIS_MAX_DOFS else None

@@ -1,0 +1,116 @@
+"""The automatic eigensolver choice predicts shift-invert from the fill of the actual matrix.
+
+A power law in the DOF count cannot tell a compact solid (whose factorization fills ~n^(4/3) and
+costs ~n^2) from a thin plate of the same size (far less): :func:`sc_fem.fem.fill.analyze_fill`
+reads the fill from CHOLMOD's ordering of the matrix itself, and the factorization reuses it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from sc_fem.fem import fill, options
+from sc_fem.fem.assemble import Assembler
+from sc_fem.fem.eigen import EigenSolver, SHIFT_FRACTION, lambda_scale, shifted
+from sc_fem.fem.linsolve import available_backends, factorize
+from sc_fem.lattice.cubes import CubeModel
+
+needs_fill = pytest.mark.skipif("cholmod" not in available_backends() or fill._column_counts_jit is None,
+                                reason="the fill analysis needs CHOLMOD (scikit-sparse) and numba")
+
+
+def _shifted(shape) -> sp.csr_matrix:
+    """``K - sigma M`` of a free box of ``shape`` cubes."""
+    asm = Assembler(CubeModel.box(shape, 0.01, youngs=1e7, poisson=0.3, density=1000.0), "q1i")
+    K, M = asm.stiffness(), asm.mass()
+    return shifted(K, M, -SHIFT_FRACTION * lambda_scale(K, M))
+
+
+def test_column_counts_match_a_dense_cholesky():
+    """nnz of each column of L, counted from the elimination tree, equals that of a dense Cholesky
+    factor of the permuted matrix (random pattern, random order)."""
+    if fill._column_counts_jit is None:
+        pytest.skip("needs numba")
+    rng = np.random.default_rng(3)
+    n = 60
+    B = sp.random(n, n, density=0.04, random_state=4, data_rvs=lambda m: rng.uniform(0.1, 1.0, m))
+    A = (B + B.T + sp.eye(n) * n).tocsc()
+    perm = rng.permutation(n)
+    L = np.linalg.cholesky(A[perm][:, perm].toarray())
+    counts = fill.column_counts(A, perm)
+    np.testing.assert_array_equal(counts, np.count_nonzero(np.abs(L) > 1e-300, axis=0))
+    np.testing.assert_array_equal(fill.column_counts(sp.eye(5), np.arange(5)), np.ones(5))
+
+
+@needs_fill
+def test_a_compact_solid_predicts_more_shift_invert_time_per_dof_than_a_plate():
+    """At (nearly) equal DOFs, the compact cube fills and costs far more than the plate; the power
+    law cannot see it (same prediction), the fill analysis does, and ``auto`` chooses accordingly."""
+    cube, plate = _shifted((16, 16, 16)), _shifted((49, 49, 1))
+    n_c, n_p = cube.shape[0], plate.shape[0]
+    assert abs(n_c / n_p - 1) < 0.05
+    a_c, a_p = fill.analyze_fill(cube), fill.analyze_fill(plate)
+    assert a_c.nnz_l > 2 * a_p.nnz_l and a_c.flops > 5 * a_p.flops
+    t_c = options.predicted_seconds("shift-invert", n_c, 16, a_c)
+    t_p = options.predicted_seconds("shift-invert", n_p, 16, a_p)
+    assert t_c / n_c > 2 * t_p / n_p
+    big = 10 * 2**30
+    assert options.choose_method(n_p, plate.nnz, 16, big, a_p)[0] == "shift-invert"
+    method, reason = options.choose_method(n_c, cube.nnz, 16, big, a_c)
+    assert "fill nnz(L)" in reason and "predicted" in reason
+    # the memory estimate follows the fill too
+    assert options.factor_memory_estimate(n_c, cube.nnz, a_c) > 2 * options.factor_memory_estimate(n_p, plate.nnz, a_p)
+
+
+@needs_fill
+def test_the_fill_agrees_with_the_real_factor_and_is_reused():
+    """nnz(L) from the analysis is within 10 % of CHOLMOD's factor (which pads supernodes with
+    zeros), and the factorization reuses the analysis: same solution, no second ordering."""
+    A = _shifted((12, 10, 8)).tocsc()
+    a = fill.analyze_fill(A)
+    fac = factorize(A, "cholmod")
+    real = fac._f.L().nnz
+    assert 0.9 * real <= a.nnz_l <= real
+    est = options.factor_memory_estimate(A.shape[0], A.nnz, a)
+    assert 0.9 * 8 * real <= est <= 1.5 * 8 * real
+    import sksparse.cholmod as cholmod
+
+    b = np.random.default_rng(0).standard_normal(A.shape[0])
+    calls = []
+    real_cholesky = cholmod.cholesky
+    try:
+        cholmod.cholesky = lambda *x, **y: calls.append(1) or real_cholesky(*x, **y)
+        reused = factorize(A, "cholmod", analysis=a)
+    finally:
+        cholmod.cholesky = real_cholesky
+    assert not calls
+    np.testing.assert_allclose(reused.solve(b), fac.solve(b), rtol=1e-10, atol=0)
+
+
+@needs_fill
+def test_auto_records_what_it_predicted_and_what_it_took():
+    A = _shifted((8, 3, 3))
+    asm = Assembler(CubeModel.box((8, 3, 3), 0.01, youngs=1e7, poisson=0.3, density=1000.0), "q1i")
+    res = EigenSolver(asm.stiffness(), asm.mass(), method="auto").solve(8)
+    pred = res.info["predicted_seconds"]
+    assert set(pred) == {"shift-invert", "lobpcg"} and all(v > 0 for v in pred.values())
+    assert res.method == "shift-invert" and "fill nnz(L)" in res.reason
+    assert res.seconds["setup"] > 0 and res.info["factor_memory_estimate"] < 8 * 1.2 * fill.analyze_fill(A).nnz_l + 16 * A.shape[0]
+
+
+def test_without_cholmod_or_numba_the_power_law_predicts(monkeypatch):
+    """Another backend (or no numba): no analysis, the power law in n, and ``auto`` still works."""
+    A = _shifted((8, 3, 3))
+    assert fill.analyze_fill(A, "splu") is None
+    monkeypatch.setattr(fill, "_column_counts_jit", None)
+    assert fill.analyze_fill(A, "auto") is None and fill.column_counts(A, np.arange(A.shape[0])) is None
+    n = A.shape[0]
+    assert options.predicted_seconds("shift-invert", n, 6, None) == pytest.approx(
+        options.SPEED_MODEL["shift-invert"][0] * (n / 7776.0) ** options.SPEED_MODEL["shift-invert"][1])
+    assert options.fill_analysis(sp.eye(options.FILL_ANALYSIS_MAX_DOFS + 1, format="csr")) is None
+    asm = Assembler(CubeModel.box((8, 3, 3), 0.01, youngs=1e7, poisson=0.3, density=1000.0), "q1i")
+    res = EigenSolver(asm.stiffness(), asm.mass(), method="auto", backend="splu").solve(6)
+    assert "power law in n" in res.reason and res.backend in ("splu", "pyamg")
+    assert res.info["predicted_seconds"]["shift-invert"] == pytest.approx(options.predicted_seconds("shift-invert", n, 6))
