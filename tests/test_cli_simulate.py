@@ -126,7 +126,7 @@ def test_xpbd_refuses_options_it_does_not_support(tmp_path, capsys):
     from sc_fem._cli.main import main
 
     rc = main(["simulate", "builtin:rope", "-r", "8", "--method", "xpbd", "--ground", "0", "--dt", "0.05",
-               "--duration", "0.1", "-o", str(tmp_path / "x.npz")])
+               "--fps", "20", "--duration", "0.1", "-o", str(tmp_path / "x.npz")])
     assert rc == 2 and "supports gravity and fixed nodes only, not ground" in capsys.readouterr().err
     assert not (tmp_path / "x.npz").exists()
 

@@ -82,6 +82,18 @@ def test_cli_draws_stage_bars_and_quiet_draws_none(always, tmp_path, capsys):
     assert capsys.readouterr().err == ""
 
 
+def test_simulate_no_progress_draws_no_bar_in_any_stage(always, tmp_path, capsys):
+    out = tmp_path / "beam.npz"
+    args = ["simulate", "builtin:beam", "-r", "6", "--fix", "default", "--duration", "0.04", "--gravity", "-o", str(out)]
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert "voxelize:" in err and "assemble K:" in err and "newmark:" in err
+    assert main([*args, "--no-progress"]) == 0
+    err = capsys.readouterr().err
+    assert "[voxelize]" in err or "voxelize" in err                 # the stage lines stay
+    assert not any(b in err for b in ("voxelize:", "assemble K:", "newmark:"))
+
+
 @pytest.mark.parametrize("mode", ["auto", "always"])
 def test_a_library_call_without_logging_draws_nothing(unconfigured, monkeypatch, capsys, mode):
     monkeypatch.setenv(_progress.ENV, mode)
@@ -137,3 +149,16 @@ def test_counting_passes_the_operator_through():
         assert bar.n == 2 and "residual 8.9e+00 x tol" in bar.postfix     # ||(0, 2, 4)|| / 0.5
     finally:
         bar.close()
+
+
+def test_logging_to_a_file_draws_no_bar(unconfigured, tmp_path, capsys):
+    handler = logging.FileHandler(tmp_path / "run.log")
+    _log.logger.addHandler(handler)
+    _log.logger.setLevel(logging.INFO)
+    try:
+        assert not _progress.info_shown()
+        with _progress.stage_bar("file only", 3) as bar:
+            assert bar.disable
+    finally:
+        _log.logger.removeHandler(handler)
+        handler.close()

@@ -96,3 +96,53 @@ def test_a_closed_surface_needs_no_cone_and_gets_integers(rng):
     w = winding_number(box.vertices, box.faces, q)
     assert np.array_equal(w, np.rint(w))
     assert np.array_equal(w > 0.5, box.contains(q))
+
+
+def _heightfield(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """An open, gently curved n x n sheet: its one boundary loop is nearly flat, so its cone is a
+    fan that covers most of the xy bins."""
+    xs, ys = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n), indexing="ij")
+    v = np.stack([xs.ravel(), ys.ravel(), 0.05 * np.sin(6 * xs.ravel()) * np.cos(5 * ys.ravel())], axis=1)
+    i, j = np.meshgrid(np.arange(n - 1), np.arange(n - 1), indexing="ij")
+    a = (i * n + j).ravel()
+    return v, np.vstack([np.stack([a, a + n, a + n + 1], 1), np.stack([a, a + n + 1, a + 1], 1)])
+
+
+def test_a_large_flat_hole_does_not_crowd_the_crossing_bins(rng):
+    """The cone over a terrain's rim would put most cone triangles into most xy bins (14 s and 4 GB
+    for 318k faces); the rays go along the axis the cone crowds least, or libigl alone takes over."""
+    import time
+
+    from sc_fem.geometry.inside import _fast_winding_number, _ray_axis
+
+    v, f = _heightfield(200)
+    apex, cone = boundary_cone(v, f)
+    assert _ray_axis(np.vstack([v, apex]), f, cone, 1000) is None
+    q = rng.random((1000, 3)) - [0, 0, 0.5]
+    t0 = time.perf_counter()
+    w = winding_number(v, f, q)
+    took = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    ref = _fast_winding_number(v, f, q)
+    assert took < 10 * (time.perf_counter() - t0) + 1.0
+    assert np.abs(w - ref).max() < 1e-12
+    # a vertical flat hole (an open-ended tube along z): crowded seen along z, not along x or y
+    tube = trimesh.creation.cylinder(radius=0.3, height=2.0, sections=64)
+    side = np.abs(tube.face_normals[:, 2]) < 0.5
+    tv, tf = np.asarray(tube.vertices), np.asarray(tube.faces)[side]
+    apex, cone = boundary_cone(tv, tf)
+    assert _ray_axis(np.vstack([tv, apex]), tf, cone, 1000) in (0, 1)
+    qq = rng.random((800, 3)) * [0.8, 0.8, 2.4] - [0.4, 0.4, 1.2]
+    assert np.abs(winding_number(tv, tf, qq) - np.asarray(igl.winding_number(tv, tf, qq))).max() < 2e-3
+
+
+def test_a_point_one_rounding_step_inside_the_last_bin_is_inside():
+    from sc_fem._jit import available
+
+    from sc_fem.geometry.inside import crossing_number
+
+    lo, hi = 0.23643249400513433, 19.24620178356058
+    box = trimesh.creation.box(bounds=[[lo, 0, 0], [hi, 1, 1]])
+    q = np.vstack([[[np.nextafter(hi, -np.inf), 0.5, 0.5]], np.tile([[1.0, 0.5, 0.5]], (36 * 36 * 16 - 1, 1))])
+    for kernel in ["numpy"] + (["numba"] if available() else []):
+        assert crossing_number(box.vertices, box.faces, q, kernel=kernel)[0] == 1.0, kernel

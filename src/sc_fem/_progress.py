@@ -58,15 +58,11 @@ def progress_mode() -> str:
 
 
 def info_shown() -> bool:
-    """Whether an INFO record of the ``sc_fem`` logger reaches a real handler that lets it through."""
+    """Whether an INFO record of the ``sc_fem`` logger reaches a console handler (stderr or stdout)
+    that lets it through: logging to a file alone draws no bar."""
     if not logger.isEnabledFor(logging.INFO):
         return False
-    lg: logging.Logger | None = logger
-    while lg is not None:
-        if any(not isinstance(h, logging.NullHandler) and h.level <= logging.INFO for h in lg.handlers):
-            return True
-        lg = lg.parent if lg.propagate else None
-    return False
+    return any(h.level <= logging.INFO for h in _console_handlers())
 
 
 class _ClearBars(logging.Filter):

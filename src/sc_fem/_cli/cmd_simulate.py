@@ -78,8 +78,8 @@ def run(args) -> int:
     for name, flag in (("duration", "--duration"), ("dt", "--dt"), ("fps", "--fps"), ("magnify", "--exaggerate")):
         if getattr(args, name) is not None:
             positive_scalar(getattr(args, name), flag)      # checked before any work, named as typed
-    if args.dt is not None and args.method != "xpbd":       # before any work (xpbd's dt is its frame step)
-        frame_steps(args.duration, args.dt, args.fps)
+    if args.dt is not None:
+        frame_steps(args.duration, args.dt, args.fps)       # before any work
     same = ("dt", "method", "gust", "ground", "sphere", "box", "velocity", "friction", "self_contact", "rayleigh",
             "element", "up", "solver")                     # run_simulation's keywords spelled as the options
     return finish(args, simulate_to_file(

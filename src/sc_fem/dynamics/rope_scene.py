@@ -104,7 +104,7 @@ def rope_scene(n_frames: int = 201, fps: float = 60.0, resolution: int = 40, sub
     n_curves, n_points : int
         Curves around the rope's axis and points along each (:func:`rope_curve_points`).
     progress : bool
-        Show a progress bar on stderr (needs tqdm).
+        Show a progress bar on stderr.
 
     Returns
     -------

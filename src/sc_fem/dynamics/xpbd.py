@@ -15,13 +15,13 @@ Units: positions in metres, velocities m/s, times s, energies J.
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass
 from typing import Any, Iterator
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from .._progress import stage_bar
 from .._validate import as_float_array, as_points, positive_int, positive_scalar
 from ..errors import InputError, InstabilityError
 from ..lattice.cubes import CubeModel
@@ -253,7 +253,7 @@ class XPBDSolver:
         n_steps : int
             Frame steps to take (>= 0).
         progress : bool
-            Show a progress bar on stderr (needs tqdm).
+            Show a progress bar on stderr (:func:`sc_fem._progress.stage_bar`).
 
         Yields
         ------
@@ -262,19 +262,11 @@ class XPBDSolver:
         """
         n_steps = positive_int(n_steps, "n_steps", minimum=0)
         yield self.state
-        bar = None
-        if progress:
-            from tqdm import tqdm
-            bar = tqdm(total=n_steps, desc="XPBD", unit="step", file=sys.stderr)
-        try:
+        with stage_bar("xpbd", n_steps, unit="step", enabled=progress) as bar:
             for _ in range(n_steps):
                 st = self.step()
-                if bar is not None:
-                    bar.update()
+                bar.update(1)
                 yield st
-        finally:
-            if bar is not None:
-                bar.close()
 
     def __iter__(self) -> Iterator[XPBDState]:
         while True:
@@ -361,7 +353,7 @@ def simulate_xpbd(model: CubeModel, dt: float, n_steps: int, *, substeps: int = 
     substeps, iterations, constraints, gravity, fixed_nodes, damping, gauss_seidel, warm_start
         As :class:`XPBDSolver` (``gravity`` m/s^2, shape (3,); ``damping`` 1/s).
     progress : bool
-        Show a progress bar on stderr (needs tqdm).
+        Show a progress bar on stderr.
     **kw
         Further :class:`XPBDSolver` options (``relaxation``, ``max_energy_growth``, ``positions``,
         ``velocities``, ``kernel``).

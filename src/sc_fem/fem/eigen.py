@@ -37,13 +37,14 @@ asking again for more eigenpairs costs no second setup; :func:`solve_eigen` is t
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator, eigsh
 
 from .._log import logger
+from .._progress import counting, stage_bar
 from .._validate import positive_int
 from ..errors import InputError, SolverError
 # EigenOptions and lobpcg_memory_estimate are re-exported: the eigensolver's names stay importable from here
@@ -257,6 +258,7 @@ class EigenSolver:
             from .linsolve import factorize
 
             fac = factorize(A, self.backend, self._analysis)     # CHOLMOD reuses the ordering of _setup
+            self._analysis = self._analysis and replace(self._analysis, factor=None)   # the numbers stay
             self.backend = fac.backend
             self._op = LinearOperator(A.shape, matvec=fac.solve, matmat=fac.solve, dtype=np.float64)
         else:
@@ -283,7 +285,7 @@ class EigenSolver:
         if not self._auto:
             raise SolverError(f"{msg}; use the shift-invert solver (eigen='shift-invert', or 'auto' to "
                               f"fall back automatically)")
-        need, budget = factor_memory_estimate(self.n, self.K.nnz), memory_budget(self.max_memory)
+        need, budget = factor_memory_estimate(self.n, self.K.nnz, self._analysis), memory_budget(self.max_memory)
         if need > budget:
             raise SolverError(f"{msg}; shift-invert would need ~{need / 2**30:.1f} GiB > budget "
                               f"{budget / 2**30:.1f} GiB: use a coarser resolution or raise max_memory "
@@ -294,8 +296,6 @@ class EigenSolver:
         self._build()
 
     def _eigsh(self, k: int) -> tuple[np.ndarray, dict]:
-        from .._progress import counting, stage_bar
-
         v0, ncv = np.random.default_rng(self.seed).standard_normal(self.n), min(self.n, max(2 * k + 1, k + 20))
         with stage_bar("eigensolve (shift-invert)", unit="solve") as bar:     # counts the solves with K - sigma M
             try:
@@ -315,7 +315,6 @@ class EigenSolver:
         if (B := self.near_null) is not None:      # start in the rigid space: those modes converge at once
             X[:, :min(B.shape[1], m)] = B[:, :min(B.shape[1], m)]
         from .._jit import blas_single_threaded
-        from .._progress import counting, stage_bar
 
         Ap, Mp = self._products
         A_op = LinearOperator(Ap.A.shape, matvec=Ap, matmat=Ap, dtype=np.float64)

@@ -37,9 +37,7 @@ def _crossings_py(q, tri, lo, hi, size, nb, start, bin_face, out):  # pragma: no
         fy = (py - lo[1]) / size[1]
         if fx < 0 or fy < 0 or px > hi[0] or py > hi[1]:
             continue
-        bx, by = int(fx), int(fy)
-        if bx >= nb or by >= nb:
-            continue
+        bx, by = min(int(fx), nb - 1), min(int(fy), nb - 1)     # x = hi may round to bin nb: the last bin
         b = bx * nb + by
         acc = 0.0
         for k in range(start[b], start[b + 1]):

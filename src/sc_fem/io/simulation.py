@@ -8,11 +8,13 @@ The job is :func:`sc_fem.dynamics.job.run_simulation` on a :class:`~sc_fem.Scene
 from __future__ import annotations
 
 import warnings
+from contextlib import nullcontext
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from .._progress import stage_bar
 from ..errors import ScFemWarning
 from .report import JobResult, stage, table
 
@@ -95,7 +97,7 @@ def simulate_to_file(mesh: Any, output: str | Path, *, duration: float, fps: flo
     verbose : bool
         Print every stage (voxelize, simulate, write) and its time on stderr.
     progress : bool
-        Progress bars of the run and the rendering on stderr.
+        Progress bars of the stages (voxelize, assembly, the run, the rendering) on stderr; False: none.
     **options
         Keyword arguments of :func:`sc_fem.dynamics.job.run_simulation` (``dt``, ``method``,
         ``gravity``, ``ground``, ``impulses``, ``newmark``, ``xpbd``, ``up``, ...).
@@ -119,12 +121,13 @@ def simulate_to_file(mesh: Any, output: str | Path, *, duration: float, fps: flo
     from .voxelize import model_summary
 
     timings: dict = {}
-    with stage("voxelize", timings, verbose):
-        scene = Scene.from_mesh(mesh, voxel, fix=fix, fix_vertices=fix_vertices)
-    with stage("simulate", timings, verbose):
-        rec = run_simulation(scene, duration=duration, fps=fps, progress=progress, **options)
-    with stage("write", timings, verbose):
-        path = write_animation(output, scene, rec, exaggerate=exaggerate, fps=fps, progress=progress)
+    with nullcontext() if progress else stage_bar("simulate", enabled=False):     # False: no bar in any stage
+        with stage("voxelize", timings, verbose):
+            scene = Scene.from_mesh(mesh, voxel, fix=fix, fix_vertices=fix_vertices)
+        with stage("simulate", timings, verbose):
+            rec = run_simulation(scene, duration=duration, fps=fps, progress=progress, **options)
+        with stage("write", timings, verbose):
+            path = write_animation(output, scene, rec, exaggerate=exaggerate, fps=fps, progress=progress)
     for w in rec.info["warnings"]:
         warnings.warn(w, ScFemWarning, stacklevel=2)
     written, wrote = [path], f"wrote {Path(output)}"
