@@ -111,6 +111,7 @@ def test_voxelize_bar_names_its_stages(always, capsys):
 
 def test_auto_bar_appears_after_the_delay_and_is_erased(unconfigured, monkeypatch, capsys):
     monkeypatch.setattr(_progress, "DELAY", 0.05)
+    monkeypatch.setattr(_progress, "_interactive", lambda: True)        # a terminal
     with _log.stderr_messages("INFO"):
         with _progress.stage_bar("quick", 3) as bar:          # done within the delay: never drawn
             bar.update(3)
@@ -125,6 +126,7 @@ def test_auto_bar_appears_after_the_delay_and_is_erased(unconfigured, monkeypatc
 
 
 def test_one_bar_at_a_time_and_explicit_choices(unconfigured, monkeypatch):
+    monkeypatch.setattr(_progress, "_interactive", lambda: True)        # a terminal
     with _log.stderr_messages("INFO"):
         with _progress.stage_bar("outer", enabled=True) as outer:
             assert not outer.disable
@@ -162,3 +164,16 @@ def test_logging_to_a_file_draws_no_bar(unconfigured, tmp_path, capsys):
     finally:
         _log.logger.removeHandler(handler)
         handler.close()
+
+
+def test_a_log_file_or_pipe_gets_stage_lines_not_bars(unconfigured, monkeypatch, capsys):
+    """stderr redirected (not a terminal): ``auto`` draws no bar for the library's stages, an
+    explicit ``progress=True`` and ``SC_FEM_PROGRESS=always`` still do."""
+    monkeypatch.setattr(_progress, "_interactive", lambda: False)
+    with _log.stderr_messages("INFO"):
+        assert _progress.stage_bar("voxelize").disable
+        with _progress.stage_bar("asked", enabled=True) as bar:
+            assert not bar.disable
+        monkeypatch.setenv(_progress.ENV, "always")
+        with _progress.stage_bar("forced") as bar:
+            assert not bar.disable

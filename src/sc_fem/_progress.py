@@ -2,9 +2,10 @@
 
 :func:`stage_bar` returns a tqdm bar on stderr for one stage. Whether it is drawn:
 
-* ``enabled=None`` (the library's own stages): when the ``sc_fem`` logger shows INFO messages to
-  a handler -- the command line shows bars, ``--quiet`` (warnings only) silences them, and a
-  library call with no logging configured draws nothing;
+* ``enabled=None`` (the library's own stages): when the ``sc_fem`` logger shows INFO messages on
+  the console and stderr is a terminal or a notebook -- the command line shows bars, ``--quiet``
+  (warnings only) silences them, a run whose stderr goes to a file or a pipe writes only the stage
+  lines, and a library call with no logging configured draws nothing;
 * ``enabled=True`` / ``False``: the caller's explicit ``progress=`` (a ``False`` stage silences
   the stages run inside it too, e.g. the re-assembly at every step of ``--no-progress``);
 * inside a stage whose bar is drawn, no second bar: the outer one is the progress.
@@ -161,6 +162,12 @@ class _StageBar(tqdm):
         super().close()
 
 
+def _interactive() -> bool:
+    """Whether stderr is a terminal or a notebook's output (where a redrawn bar reads as one line;
+    in a log file or a pipe every redraw would stay)."""
+    return bool(getattr(sys.stderr, "isatty", lambda: False)()) or "ipykernel" in sys.modules
+
+
 def stage_bar(desc: str, total: float | None = None, *, unit: str = "it", enabled: bool | None = None,
               tick: float | None = None, rate: bool = True) -> tqdm | _NoBar:
     """A progress bar on stderr for one stage (use it as a context manager, or ``close()`` it).
@@ -190,7 +197,8 @@ def stage_bar(desc: str, total: float | None = None, *, unit: str = "it", enable
     """
     mode = progress_mode()
     inside = any(not b.disable or b.silencing for b in _open_stages())       # a drawn or a silencing stage
-    drawn = mode != "never" and not inside and enabled is not False and (enabled or info_shown())
+    drawn = mode != "never" and not inside and enabled is not False and (
+        enabled or (info_shown() and (mode == "always" or _interactive())))
     if not drawn:
         return _NoBar(silencing=enabled is False)
     now = mode == "always"
