@@ -382,7 +382,8 @@ class EigenSolver:
             raise InputError(f"k = {k} eigenpairs requested but the problem has only {self.n} DOFs (need k < n)")
         reused = self._op is not None
         if not reused:
-            self._setup(k)
+            with stage_bar("eigensolver set-up", tick=1.0, rate=False):   # the fill analysis, the AMG
+                self._setup(k)
         t0 = time.perf_counter()
         secs = {}
         while True:                            # at most twice: LOBPCG, then shift-invert if it failed
