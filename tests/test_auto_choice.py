@@ -114,3 +114,13 @@ def test_without_cholmod_or_numba_the_power_law_predicts(monkeypatch):
     res = EigenSolver(asm.stiffness(), asm.mass(), method="auto", backend="splu").solve(6)
     assert "power law in n" in res.reason and res.backend in ("splu", "pyamg")
     assert res.info["predicted_seconds"]["shift-invert"] == pytest.approx(options.predicted_seconds("shift-invert", n, 6))
+
+
+def test_the_summary_says_what_auto_predicted_and_what_it_took(tmp_path, capsys):
+    import re
+
+    from sc_fem._cli.main import main
+
+    assert main(["precompute-modes", "builtin:beam", "-r", "8", "-k", "4", "-o", str(tmp_path / "b.npz")]) == 0
+    line = next(s for s in capsys.readouterr().out.splitlines() if s.strip().startswith("eigensolver"))
+    assert re.search(r"predicted [\d.]+ s shift-invert", line) and re.search(r"took [\d.]+ s", line), line

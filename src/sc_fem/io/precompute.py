@@ -44,7 +44,8 @@ def precompute_summary(basis: Any, timings: dict) -> str:
         ("fixed", f"{basis.fix_record.get('n_nodes', 0)} nodes "
                   f"({', '.join(basis.fix_record.get('specs', [])) or 'free'})"),
         ("eigensolver", f"{e.get('method', '')} / {e.get('backend', '')}: {e.get('reason', '')}; "
-                        f"{e.get('passes', 1)} solve(s) on {e.get('setups', 1)} factorization/hierarchy"),
+                        + (f"took {basis.timings['eigensolve']:.3g} s, " if "eigensolve" in basis.timings else "")
+                        + f"{e.get('passes', 1)} solve(s) on {e.get('setups', 1)} factorization/hierarchy"),
         ("rigid modes", f"{e.get('n_rigid_found', 0)} found, {basis.n_rigid_removed} removed"),
         ("modes", f"{basis.n_modes} on {basis.n_vertices:,} vertices, damping {basis.damping_spec}"),
     ]
