@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import scipy.sparse as sp
 
 from sc_fem.fem.assemble import Assembler
 from sc_fem.fem.eigen import solve_eigen
@@ -552,22 +551,3 @@ def test_lobpcg_converges_on_the_thin_slatted_chair():
     si = modal("builtin:chair", n_modes=10, resolution=32, eigen="shift-invert")
     assert lo.eigen["method"] == "lobpcg" and lo.eigen["stop"] == "converged"
     np.testing.assert_allclose(lo.frequencies, si.frequencies, rtol=1e-8)
-
-
-def test_lobpcg_leaves_the_exact_rigid_modes_of_a_free_model_out_of_its_search():
-    """A free model's 6 rigid modes are exact null vectors of K: LOBPCG searches their
-    M-orthogonal complement (a block 6 columns narrower) and puts them back; a held model's
-    rigid fields are not eigenvectors and stay in the block (only the AMG uses them)."""
-    from sc_fem.fem.rigid import rigid_body_modes, rigid_null
-
-    free = modal("builtin:beam", n_modes=8, resolution=12, eigen="lobpcg", keep_rigid=True)
-    ref = modal("builtin:beam", n_modes=8, resolution=12, eigen="shift-invert", keep_rigid=True)
-    assert free.eigen["rigid_deflated"] == 6 and free.eigen["n_rigid_found"] == 6
-    np.testing.assert_allclose(free.frequencies[6:], ref.frequencies[6:], rtol=1e-8)
-    assert np.all(free.frequencies[:6] < 1e-3 * free.frequencies[6])
-    held = modal("builtin:beam", n_modes=4, resolution=12, eigen="lobpcg", fix="x<min+0")
-    assert held.eigen["rigid_deflated"] == 0
-    m = CubeModel.box((4, 2, 2), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
-    K = Assembler(m, "q1i").stiffness()
-    B = rigid_body_modes(m.nodes_m)
-    assert rigid_null(K, B) and not rigid_null(K + 1e-3 * sp.eye(K.shape[0]) * K.diagonal().mean(), B)

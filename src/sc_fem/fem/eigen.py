@@ -50,7 +50,6 @@ from ..errors import InputError, SolverError
 # EigenOptions and lobpcg_memory_estimate are re-exported: the eigensolver's names stay importable from here
 from .bsr import node_blocks
 from .multigrid import LatticeAMG
-from .rigid import rigid_null
 from .spmm import BlockProduct
 from .options import (METHODS, EigenOptions, choose_method, factor_memory_estimate,  # noqa: F401
                       lobpcg_memory_estimate, memory_budget)
@@ -311,15 +310,12 @@ class EigenSolver:
 
         from scipy.sparse.linalg import lobpcg
 
+        m = min(self.n - 1, k + max(4, k // 4))   # a few extra vectors speed convergence
+        X = np.random.default_rng(self.seed).standard_normal((self.n, m))
+        if (B := self.near_null) is not None:      # start in the rigid space: those modes converge at once
+            X[:, :min(B.shape[1], m)] = B[:, :min(B.shape[1], m)]
         from .._jit import blas_single_threaded
 
-        B, Y = self.near_null, None     # exact rigid modes (a free model): constraints Y, put back after
-        if B is not None and k > B.shape[1] and rigid_null(self.K, B):
-            Y, k = B, k - B.shape[1]
-        m = min(self.n - 1 - (0 if Y is None else Y.shape[1]), k + max(4, k // 4))   # a few extra vectors
-        X = np.random.default_rng(self.seed).standard_normal((self.n, m))
-        if B is not None and Y is None:            # start in the rigid space: those modes converge at once
-            X[:, :min(B.shape[1], m)] = B[:, :min(B.shape[1], m)]
         Ap, Mp = self._products
         A_op = LinearOperator(Ap.A.shape, matvec=Ap, matmat=Ap, dtype=np.float64)
         with warnings.catch_warnings(), blas_single_threaded(), stage_bar("eigensolve (LOBPCG)") as bar:
@@ -327,20 +323,25 @@ class EigenSolver:
             # lobpcg's tol is absolute on ||A x - mu M x|| (x M-normalized): scale it by the shift, the
             # smallest eigenvalue scale we know, times the typical ||M x|| ~ sqrt(mean diag M)
             tol_abs = self.lobpcg_tol * abs(self.sigma) * float(np.sqrt(np.mean(self.M.diagonal())))
-            # scipy's LOBPCG stops only when the whole block has converged, the extra vectors too,
-            # which converge last (24,336-DOF cantilever: the 6 wanted at iteration 19, the block
-            # at 53); so it runs in rounds of LOBPCG_ROUNDS iterations, each restarted from the
-            # last, until the k wanted pass. A round LOBPCG ends early (ill-conditioned Gram
-            # matrices) is restarted too: a fresh orthonormal block often goes on (a 3,600-DOF
-            # plate stalled in 5 of 60 random starts and converged after 1-3 restarts). A round
-            # that made too little progress ends the solve (at 931,896 DOFs later rounds ran 2-3
-            # iterations, the frequencies converged to 1e-10), as does one whose reduction, kept
-            # up, would not reach the tolerance within maxiter ("slow": the bridge at r128 cut its
-            # residual by 1 %, the cantilevers 3x or more); the residuals reached are reported.
+            # scipy's LOBPCG stops only when every vector of the block has converged, the extra
+            # ones too, which converge last (on the 24,336-DOF cantilever the 6 wanted modes
+            # converged at iteration 19 and the block at 53); so it runs in rounds of
+            # LOBPCG_ROUNDS iterations, each restarted from the last, until the k wanted pass
+            # A round that LOBPCG ends early on its own (its Gram matrices too ill-conditioned to
+            # go on) is restarted from where it got to: a fresh, orthonormal block often goes on
+            # (a 3,600-DOF plate stalled in 5 of 60 random starts, at relative residuals down to
+            # 0.003, and converged after one to three restarts). A stalled round is judged as any
+            # other, by the rule below, and ends the solve when it made too little progress:
+            # restarting then gains nothing (at 931,896 DOFs every later round ran 2-3 iterations
+            # and left the residuals where they were, the frequencies already converged to 1e-10);
+            # the residuals reached are reported.
+            # A round whose residual reduction, kept up, would not reach the tolerance within
+            # maxiter ends the solve too ("slow"): on the bridge at resolution 128 the second round
+            # cut the residual by 1 % (the cantilevers' rounds cut it 3x or more).
             its, rounds, stalls, stop, prev = 0, 0, 0, "converged", None
             while True:
                 asked = min(LOBPCG_ROUNDS[rounds > 0], self.maxiter - its)
-                lam, V, hist = lobpcg(A_op, X, B=Mp.operator(), M=counting(bar, self._op, tol_abs, (k, m)), Y=Y,
+                lam, V, hist = lobpcg(A_op, X, B=Mp.operator(), M=counting(bar, self._op, tol_abs, (k, m)),
                                       tol=tol_abs, maxiter=asked, largest=False, retResidualNormsHistory=True)
                 its, rounds = its + len(hist), rounds + 1
                 stalled = len(hist) < asked            # it ended the round before maxiter on its own
@@ -359,9 +360,8 @@ class EigenSolver:
                 if stop != "converged":
                     break
                 X, prev = V, worst
-        return V if Y is None else np.hstack([Y, V]), {"iterations": its, "rounds": rounds, "stop": stop,
-                                                      "stalled_rounds": stalls, "residual_over_tol": worst,
-                                                      "rigid_deflated": 0 if Y is None else Y.shape[1]}
+        return V, {"iterations": its, "rounds": rounds, "stop": stop, "stalled_rounds": stalls,
+                   "residual_over_tol": worst}
 
     def solve(self, k: int) -> EigenResult:
         """The ``k`` smallest eigenpairs (``1 <= k < n``), refined by Rayleigh--Ritz, with residuals.

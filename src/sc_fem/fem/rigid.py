@@ -30,24 +30,3 @@ def rigid_block(q: np.ndarray) -> np.ndarray:
     B[:, 0, 4], B[:, 2, 4] = z, -x
     B[:, 0, 5], B[:, 1, 5] = -y, x
     return B
-
-
-def rigid_null(K, B: np.ndarray, rtol: float = 1e-8) -> bool:
-    """Whether the columns of ``B`` (n, r) are null vectors of the stiffness ``K`` (n, n): rigid-body
-    modes of a model that nothing holds (``||K b|| <= rtol * mean|diag K| * ||b||`` for every column).
-
-    Parameters
-    ----------
-    K : scipy.sparse matrix, shape (n, n)
-        Stiffness, N/m.
-    B : ndarray, shape (n, r)
-        Candidate null space (e.g. :func:`rigid_body_modes`).
-    rtol : float
-        Relative tolerance (round-off gives ~1e-15).
-
-    Returns
-    -------
-    bool
-    """
-    scale = float(np.abs(K.diagonal()).mean())
-    return bool(np.all(np.linalg.norm(K @ B, axis=0) <= rtol * scale * np.linalg.norm(B, axis=0)))
