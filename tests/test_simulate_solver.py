@@ -65,3 +65,8 @@ def test_one_frame_step_rule():
         frame_steps(1.0, 0.003, 50.0)
     with pytest.raises(InputError, match="shorter than one step"):
         frame_steps(0.001, 0.01, 50.0)
+
+
+def test_run_simulation_takes_a_scene_and_says_so(beam):
+    with pytest.raises(InputError, match=r"takes a Scene, got CubeModel.*simulate_to_file"):
+        run_simulation(beam.model, duration=0.05)

@@ -87,6 +87,28 @@ class Scene:
         return cls.from_model(model, mesh, fix=fix, fix_vertices=fix_vertices)
 
     @classmethod
+    def check(cls, scene: Any, caller: str, convenience: str) -> "Scene":
+        """``scene`` if it is a Scene, else one :class:`~sc_fem.errors.InputError` naming the way to one.
+
+        Parameters
+        ----------
+        scene : Any
+            What a strict solver was given.
+        caller : str
+            The solver (``"sc_fem.modes.modal"``), named in the error.
+        convenience : str
+            The call that builds the Scene itself (``"sc_fem.modal(source, ...)"``).
+
+        Returns
+        -------
+        Scene
+        """
+        if not isinstance(scene, cls):
+            raise InputError(f"{caller} takes a Scene, got {type(scene).__name__}: build one with "
+                             f"Scene.from_mesh / Scene.from_model, or call {convenience}, which does")
+        return scene
+
+    @classmethod
     def coerce(cls, source: Any, options: Any = None, *, mesh: Any = None, fix: Iterable[Fix] | Fix | None = None,
                fix_vertices: ArrayLike | None = None, **fields: Any) -> "Scene":
         """A Scene from what a solver's convenience was given: a Scene (as it is), a

@@ -11,6 +11,7 @@ import numpy as np
 from .._validate import as_float_array, positive_scalar
 from ..errors import InputError
 from ..fem.options import DynamicOptions
+from ..scene import Scene
 from ..units import up_axis
 from .newmark import NewmarkOptions
 from .xpbd import XPBDOptions
@@ -166,6 +167,7 @@ def run_simulation(scene, *, duration: float, dt: float | None = None, method: s
     from .driver import METHODS, make_integrator, record
     from .loads import Gravity, LoadSet, VertexForce, half_sine
 
+    Scene.check(scene, "sc_fem.dynamics.job.run_simulation", "sc_fem.io.simulation.simulate_to_file(mesh, ...)")
     dt_given = dt
 
     if method not in ("auto", *METHODS):

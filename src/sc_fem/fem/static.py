@@ -165,9 +165,7 @@ def solve_static(scene: Scene, *, element: str = DEFAULT_ELEMENT, forces: ArrayL
         directly when CG has not converged within
         :data:`~sc_fem.fem.options.AUTO_CG_ITERATIONS` and the factorization fits in memory).
     """
-    if not isinstance(scene, Scene):
-        raise InputError(f"sc_fem.fem.static.solve_static takes a Scene, got {type(scene).__name__}: build one "
-                         "with Scene.from_model / Scene.from_mesh, or call sc_fem.solve_static(model, ...), which does")
+    Scene.check(scene, "sc_fem.fem.static.solve_static", "sc_fem.solve_static(model, ...)")
     opts = StaticOptions.coerce(solver)
     if backend != "auto":
         if opts.backend not in ("auto", backend):

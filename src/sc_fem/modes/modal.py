@@ -32,7 +32,6 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..errors import InputError
 from ..fem.eigen import EigenOptions
 from ..fem.elements import DEFAULT_ELEMENT
 from ..scene import Scene
@@ -103,7 +102,4 @@ def modal(scene: Scene, *, n_modes: int | None = None, max_frequency: float | No
 
 def _scene(scene: Any) -> Scene:
     """``scene``, checked to be one."""
-    if not isinstance(scene, Scene):
-        raise InputError(f"sc_fem.modes.modal takes a Scene, got {type(scene).__name__}: build one with "
-                         "Scene.from_mesh / Scene.from_model, or call sc_fem.modal(source, ...), which does")
-    return scene
+    return Scene.check(scene, "sc_fem.modes.modal", "sc_fem.modal(source, ...)")
