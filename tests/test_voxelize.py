@@ -256,3 +256,13 @@ def test_a_face_on_a_grid_plane_occupies_the_cube_of_its_material_only():
 
         emb = embedding(model, m.vertices)
         assert emb.n_detached == 0 and np.abs(emb.W @ model.nodes - m.vertices).max() < 1e-12
+
+
+def test_a_field_given_twice_with_two_values_is_refused():
+    from sc_fem.errors import InputError
+    from sc_fem.lattice.options import VoxelOptions
+
+    with pytest.raises(InputError, match="resolution=12 contradicts the voxel options"):
+        sc_fem.voxelize("builtin:beam", VoxelOptions(resolution=8), resolution=12)
+    same = sc_fem.voxelize("builtin:beam", VoxelOptions(resolution=8), resolution=8, fill="solid")
+    assert same.n_cubes == sc_fem.voxelize("builtin:beam", resolution=8, fill="solid").n_cubes

@@ -77,13 +77,9 @@ class Scene:
         from .lattice.options import VoxelOptions
         from .lattice.voxelize import voxelize
 
-        options = VoxelOptions.coerce(options)
-        given = options.changed()
-        clash = [f"{k}={v!r}" for k, v in fields.items() if k in given and not _same(given[k], v)]
-        if clash:
-            raise InputError(f"{', '.join(clash)} contradicts the voxel options {options!r}: give each once")
+        options = VoxelOptions.coerce(options, **fields)       # a field given twice differently: an error
         mesh = load_mesh(source)
-        model = voxelize(mesh, options, **fields)
+        model = voxelize(mesh, options)
         return cls.from_model(model, mesh, fix=fix, fix_vertices=fix_vertices)
 
     @classmethod
@@ -344,11 +340,6 @@ class Scene:
     def __repr__(self) -> str:
         return (f"Scene({self.source or 'lattice'}: {self.model.n_cubes} cubes, "
                 f"{self.rest_vertices.shape[0]} vertices, {len(self.fixed_nodes)} fixed nodes)")
-
-
-def _same(a: Any, b: Any) -> bool:
-    """One option value given twice: the same object, or equal numbers or names."""
-    return a is b or (isinstance(a, (str, int, float)) and isinstance(b, (str, int, float)) and a == b)
 
 
 def _source(mesh: Any):

@@ -177,7 +177,8 @@ class VoxelOptions:
         options : VoxelOptions, mapping of str to value, or None
             The base options (``None``: the defaults).
         **changes
-            Fields overriding those of ``options``.
+            Further fields: ones that ``options`` leaves at their defaults, or the same values
+            again; a field given twice with two values is an :class:`~sc_fem.errors.InputError`.
 
         Returns
         -------
@@ -192,6 +193,10 @@ class VoxelOptions:
             base = cls().replace(**dict(options))
         else:
             raise InputError(f"voxelize options must be a VoxelOptions or a dict, got {type(options).__name__}")
+        given = base.changed()
+        clash = [f"{k}={v!r}" for k, v in changes.items() if k in given and not _same(given[k], v)]
+        if clash:
+            raise InputError(f"{', '.join(clash)} contradicts the voxel options {base!r}: give each once")
         return base.replace(**changes)
 
     def changed(self) -> dict[str, Any]:
@@ -218,3 +223,8 @@ def _short(v: Any) -> str:
     if _is_plain(v):
         return repr(v)
     return f"<{type(v).__name__}>"
+
+
+def _same(a: Any, b: Any) -> bool:
+    """One option value given twice: the same object, or equal numbers or names."""
+    return a is b or (isinstance(a, (str, int, float)) and isinstance(b, (str, int, float)) and a == b)
