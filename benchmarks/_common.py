@@ -53,3 +53,23 @@ def save_figure(fig, name: str, dpi: int = 110) -> Path:
         fig.savefig(tmp, dpi=dpi, format="png")
     print(f"wrote {path}")
     return path
+
+
+BUNNY = {"youngs": 1e7, "poisson": 0.3, "density": 1000.0}
+"""The bunny benchmarks' material: E 10 MPa, nu 0.3, 1000 kg/m^3."""
+
+
+def bunny_scene(r: int, clamp: bool = True):
+    """The Stanford bunny of the shared meshes (y up) at resolution ``r``, :data:`BUNNY`'s material,
+    the nodes of its lowest 2 % held when ``clamp`` (voxelized here, not timed by the callers)."""
+    import warnings
+
+    import numpy as np
+
+    import sc_fem
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        mesh = sc_fem.load_mesh(str(SHARED_MESHES / "bunny.obj"))
+        ext = float(np.ptp(np.asarray(mesh.vertices)[:, 1]))
+        return sc_fem.Scene.from_mesh(mesh, resolution=r, fix=f"y<min+{0.02 * ext:.6g}" if clamp else None, **BUNNY)

@@ -359,7 +359,7 @@ def write(stem: str, meta: dict, results: list[dict], planned: int) -> str:
     tab = table(ordered)
     summ = summary(results, planned)
     la0, la1 = meta["loadavg_start"], meta.get("loadavg_now", meta["loadavg_start"])
-    md = [f"# Drop-test suite (issue 22)", "",
+    md = ["# Drop-test suite (issue 22)", "",
           f"Command: `{meta['command']}`  ",
           f"Started {meta['started']}; {meta['cpus']} CPUs; load average (1/5/15 min) at start "
           f"{la0[0]:.2f}/{la0[1]:.2f}/{la0[2]:.2f}, at the last case {la1[0]:.2f}/{la1[1]:.2f}/{la1[2]:.2f}; "

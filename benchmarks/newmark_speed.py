@@ -25,30 +25,23 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-import warnings
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import SHARED_MESHES, print_table, save_figure  # noqa: E402
+from _common import SHARED_MESHES, bunny_scene, print_table, save_figure  # noqa: E402
 
-import sc_fem
 from sc_fem.dynamics import make_integrator
 from sc_fem.dynamics.contact import Ground
 from sc_fem.dynamics.ipc import IPC
 from sc_fem.dynamics.loads import Gravity, LoadSet
 
-BUNNY = {"youngs": 1e7, "poisson": 0.3, "density": 1000.0}
 G = (0.0, -9.81, 0.0)
 
 
 def bunny(r: int, clamp: bool):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        mesh = sc_fem.load_mesh(str(SHARED_MESHES / "bunny.obj"))
-        ext = float(np.ptp(np.asarray(mesh.vertices)[:, 1]))
-        return sc_fem.Scene.from_mesh(mesh, resolution=r, fix=f"y<min+{0.02 * ext:.6g}" if clamp else None, **BUNNY)
+    return bunny_scene(r, clamp)
 
 
 def run(make, n: int) -> dict:

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import SHARED_MESHES, best_time, print_table, save_figure  # noqa: E402
+from _common import SHARED_MESHES, best_time, bunny_scene, print_table, save_figure  # noqa: E402
 
 import sc_fem
 from sc_fem.fem.assemble import Assembler
@@ -40,7 +40,6 @@ from sc_fem.fem.rigid import rigid_body_modes
 from sc_fem.lattice.boundary import fixed_dofs
 
 TOL = StaticOptions().tol
-BUNNY = {"youngs": 1e7, "poisson": 0.3, "density": 1000.0}
 
 
 def scene_of(name: str, r: int):
@@ -48,10 +47,7 @@ def scene_of(name: str, r: int):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         if name == "bunny":
-            mesh = sc_fem.load_mesh(str(SHARED_MESHES / "bunny.obj"))
-            ext = float(np.ptp(np.asarray(mesh.vertices)[:, 1]))
-            scene = sc_fem.Scene.from_mesh(mesh, resolution=r, fix=f"y<min+{0.02 * ext:.6g}", **BUNNY)
-            return f"bunny r{r}", scene, np.array([0.0, -9.81, 0.0])
+            return f"bunny r{r}", bunny_scene(r), np.array([0.0, -9.81, 0.0])
         if name in ("chair", "bridge"):                # thin members, held at their built-in supports
             return f"{name} r{r}", sc_fem.Scene.from_mesh(f"builtin:{name}", resolution=r, fix="default"), \
                 np.array([0.0, 0.0, -9.81])

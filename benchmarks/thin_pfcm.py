@@ -115,7 +115,6 @@ def fine_quadrature(geo: dict, model, s: int):
 
 def build(geo: dict, r: int, p: int, fine_s: int = 0):
     mesh = geo["mesh"]
-    lo_m, hi_m = np.asarray(mesh.bounds[0]), np.asarray(mesh.bounds[1])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         model = sc_fem.voxelize(mesh, resolution=r, fill="solid", **vc.STEEL)
