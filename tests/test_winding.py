@@ -146,3 +146,26 @@ def test_a_point_one_rounding_step_inside_the_last_bin_is_inside():
     q = np.vstack([[[np.nextafter(hi, -np.inf), 0.5, 0.5]], np.tile([[1.0, 0.5, 0.5]], (36 * 36 * 16 - 1, 1))])
     for kernel in ["numpy"] + (["numba"] if available() else []):
         assert crossing_number(box.vertices, box.faces, q, kernel=kernel)[0] == 1.0, kernel
+
+
+@pytest.mark.parametrize("case", ["holed_sphere", "soup"])
+def test_millimetres_off_origin_and_y_up_change_nothing(case, rng):
+    """The same broken mesh in millimetres, 10 m off the origin and turned y-up: the same winding
+    numbers at the same (moved) points, against the exact sum; in millimetres off the origin, the
+    same cubes and mass."""
+    mesh = CASES[case]()
+    v, f = np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
+    turn = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])    # z-up -> y-up
+    move = lambda x: 1000.0 * x @ turn.T + [1.0e4, -3.0e3, 5.0e2]          # noqa: E731
+    q = v.min(0) + (v.max(0) - v.min(0)) * rng.random((1500, 3))
+    w, w_mm = winding_number(v, f, q), winding_number(move(v), f, move(q))
+    assert np.abs(w_mm - np.asarray(igl.winding_number(move(v), f, move(q)))).max() < 2e-3
+    clear = np.abs(w - 0.5) > 5e-3
+    assert np.array_equal(w[clear] > 0.5, w_mm[clear] > 0.5)
+    # the grid is fitted to the bounding box, so a turned model gets other cubes: the voxelized
+    # comparison is in millimetres and off the origin only
+    m = sc_fem.voxelize(trimesh.Trimesh(v, f, process=False), resolution=16)
+    m_mm = sc_fem.voxelize(trimesh.Trimesh(1000.0 * v + [1.0e4, -3.0e3, 5.0e2], f, process=False),
+                           resolution=16, scale=1e-3)
+    assert m_mm.n_cubes == m.n_cubes
+    np.testing.assert_allclose(m_mm.mass.sum(), m.mass.sum(), rtol=1e-6)
