@@ -40,10 +40,6 @@ from sc_fem.dynamics.loads import Gravity, LoadSet
 G = (0.0, -9.81, 0.0)
 
 
-def bunny(r: int, clamp: bool):
-    return bunny_scene(r, clamp)
-
-
 def run(make, n: int) -> dict:
     """Build (timed) and step ``n`` times: total s, per-step s after the first, history, info."""
     t0 = time.perf_counter()
@@ -58,7 +54,7 @@ def run(make, n: int) -> dict:
             "info": integ.info, "dofs": int(integ.K.shape[0])}
 
 
-def case(label: str, scene, make_kw, n: int) -> dict:
+def case(label: str, make_kw, n: int) -> dict:
     out = {"label": label, "dofs": None}
     for how in ("cg-amg", "direct"):
         o = run(lambda: make_kw(how), n)
@@ -71,15 +67,15 @@ def case(label: str, scene, make_kw, n: int) -> dict:
 
 
 def newmark_case(r: int, n: int) -> dict:
-    scene = bunny(r, True)
+    scene = bunny_scene(r, True)
     m = scene.model
     ld = LoadSet(m, [Gravity(G)])
-    return case(f"bunny r{r} clamped, Newmark {n} steps", scene,
+    return case(f"bunny r{r} clamped, Newmark {n} steps",
                 lambda how: make_integrator("newmark", m, 2e-3, fixed_nodes=scene.fixed_nodes, loads=ld, solver=how), n)
 
 
 def drop_case(r: int, n: int) -> dict:
-    scene = bunny(r, False)
+    scene = bunny_scene(r, False)
     m, V = scene.model, scene.rest_vertices
     y0 = float(V[:, 1].min()) - 0.02 * float(np.ptp(V[:, 1]))
 
@@ -87,7 +83,7 @@ def drop_case(r: int, n: int) -> dict:
         contact = IPC.contact_for(m, V, scene.faces, [Ground(y0, axis=1)], W=scene.W, friction=0.3)
         return make_integrator("ipc", m, 1e-2, loads=LoadSet(m, [Gravity(G)]), contact=contact, solver=how)
 
-    return case(f"bunny r{r} dropped, IPC {n} steps", scene, make, n)
+    return case(f"bunny r{r} dropped, IPC {n} steps", make, n)
 
 
 def main(argv=None) -> int:

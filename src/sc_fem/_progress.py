@@ -110,9 +110,6 @@ class _NoBar:
     def set_postfix_str(self, s: str = "", refresh: bool = True) -> None:
         """Nothing to show."""
 
-    def set_description_str(self, desc: str | None = None, refresh: bool = True) -> None:
-        """Nothing to show."""
-
     def close(self) -> None:
         """End the stage."""
         _end(self)
@@ -193,7 +190,7 @@ def stage_bar(desc: str, total: float | None = None, *, unit: str = "it", enable
     -------
     tqdm or _NoBar
         A drawn tqdm bar, or an object with the same few methods (``update``, ``set_postfix_str``,
-        ``set_description_str``, ``close``, context manager) doing nothing; ``disable`` tells which.
+        ``close``, context manager) doing nothing; ``disable`` tells which.
     """
     mode = progress_mode()
     inside = any(not b.disable or b.silencing for b in _open_stages())       # a drawn or a silencing stage

@@ -126,15 +126,9 @@ def analyze_fill(A: sp.spmatrix, backend: str = "auto") -> FillAnalysis | None:
     FillAnalysis or None
         None when the backend is not CHOLMOD (scikit-sparse) or numba is missing.
     """
-    import os
+    from .linsolve import resolve_backend
 
-    from .linsolve import available_backends
-
-    if backend in (None, "auto"):
-        backend = os.environ.get("SC_FEM_SOLVER", "auto") or "auto"
-    if backend == "auto":
-        backend = available_backends()[0]
-    if backend != "cholmod" or _column_counts_jit is None:
+    if resolve_backend(backend) != "cholmod" or _column_counts_jit is None:
         return None
     from sksparse.cholmod import analyze
 

@@ -192,9 +192,27 @@ def factorize(A: sp.spmatrix, backend: str | None = "auto", analysis: object | N
     SolverError
         The matrix is singular or not positive definite.
     """
+    return Factorization(A, resolve_backend(backend, keep_auto=True), analysis)
+
+
+def resolve_backend(backend: str | None = "auto", *, keep_auto: bool = False) -> str:
+    """The factorization backend that ``backend`` means: ``"auto"`` (or None) is the environment
+    variable ``SC_FEM_SOLVER`` if set, else the first installed of :data:`BACKENDS`.
+
+    Parameters
+    ----------
+    backend : str or None
+        ``"auto"``, None or a name of :data:`BACKENDS`.
+    keep_auto : bool
+        Return ``"auto"`` rather than the first installed backend when nothing names one.
+
+    Returns
+    -------
+    str
+    """
     if backend in (None, "auto"):
         backend = os.environ.get("SC_FEM_SOLVER", "auto") or "auto"
-    return Factorization(A, backend, analysis)
+    return backend if backend != "auto" or keep_auto else _available_backends()[0]
 
 
 REFRESH_GROWTH = (1.5, 4)

@@ -80,10 +80,8 @@ def boundary_cone(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, 
     weld_id = weld_id.reshape(-1)
     rep = np.zeros(int(weld_id.max()) + 1, np.int64)
     rep[weld_id[::-1]] = used[::-1]                         # a vertex index for each position
-    a, b = weld_id[f].ravel(), weld_id[f[:, [1, 2, 0]]].ravel()
     n = len(rep)
-    key, inv = np.unique(np.minimum(a, b) * n + np.maximum(a, b), return_inverse=True)
-    net = np.rint(np.bincount(inv.reshape(-1), weights=np.where(a < b, 1.0, -1.0))).astype(np.int64)
+    key, _, net = _edge_balance(weld_id[f])
     open_ = np.flatnonzero(net)
     if len(open_) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
@@ -100,7 +98,8 @@ def boundary_cone(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, 
     return apex, cone
 
 
-def winding_number(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray) -> np.ndarray:
+def winding_number(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray,
+                   cone: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Generalized winding number of ``points`` (q, 3) w.r.t. the triangles ``faces`` (m, 3).
 
     The faces are closed by :func:`boundary_cone`; the closed surface's winding number is an
@@ -112,15 +111,16 @@ def winding_number(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray) 
     a cone triangle take libigl's single-precision error there (a point on a planar hole's cone
     gets 0 or 1 where the exact value is 1/2).
 
-    Returns shape (q,). 1 inside a closed outward-oriented surface, 0 outside, fractional near
-    holes and open sheets.
+    ``cone``: :func:`boundary_cone` ``(vertices, faces)`` when the caller has it already (several
+    calls on one surface). Returns shape (q,). 1 inside a closed outward-oriented surface, 0
+    outside, fractional near holes and open sheets.
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     q = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if len(f) == 0 or len(q) == 0:
         return np.zeros(len(q))
-    apex, cone = boundary_cone(v, f)
+    apex, cone = boundary_cone(v, f) if cone is None else cone
     if len(cone) == 0:
         return crossing_number(v, f, q)
     closed_v = np.vstack([v, apex])
@@ -343,17 +343,24 @@ def _part_labels(wfaces: np.ndarray, n_vertices: int) -> np.ndarray:
     return label.reshape(-1)
 
 
+def _edge_balance(wfaces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The edges of faces (m, 3) over welded vertex ids: ``key`` (e,) of each undirected edge
+    ``lo * n + hi``, ``inv`` (3m,) the edge of each face side (sides 01, 12, 20 of face ``i`` at
+    ``i, m + i, 2m + i`` -- order of ``ravel`` on the stacked sides), and ``net`` (e,) int: uses
+    from ``lo`` to ``hi`` less uses from ``hi`` to ``lo`` (0 on every edge of a closed surface)."""
+    a, b = wfaces.ravel(), wfaces[:, [1, 2, 0]].ravel()
+    n = int(wfaces.max()) + 1 if len(wfaces) else 1
+    key, inv = np.unique(np.minimum(a, b) * n + np.maximum(a, b), return_inverse=True)
+    inv = inv.reshape(-1)
+    return key, inv, np.rint(np.bincount(inv, weights=np.where(a < b, 1.0, -1.0))).astype(np.int64)
+
+
 def _closed(wfaces: np.ndarray, label: np.ndarray, n_parts: int) -> np.ndarray:
     """Parts whose consistently oriented faces close up: every edge (between welded vertices) is
     used as often in one direction as in the other (the boundary of the 2-chain is zero, which is
     what the divergence theorem needs; edges shared by four faces of touching boxes are fine)."""
-    a = wfaces.ravel()
-    b = wfaces[:, [1, 2, 0]].ravel()
-    n = int(wfaces.max()) + 1 if len(wfaces) else 1
-    _, inv = np.unique(np.minimum(a, b) * n + np.maximum(a, b), return_inverse=True)   # edge keys
-    inv = inv.reshape(-1)
-    balance = np.bincount(inv, weights=np.where(a < b, 1.0, -1.0))
-    open_edge = balance[inv] != 0
+    _, inv, net = _edge_balance(wfaces)
+    open_edge = net[inv] != 0
     return np.bincount(label[np.repeat(np.arange(len(wfaces)), 3)[open_edge]], minlength=n_parts) == 0
 
 

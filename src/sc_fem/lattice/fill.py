@@ -49,7 +49,7 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
     Surface cells of closed-but-leaky parts (holes) and of parts forced solid get ``n_sub^3``
     inside-tested sub-cube samples.
     """
-    from ..geometry.inside import crossing_number, winding_number
+    from ..geometry.inside import boundary_cone, crossing_number, winding_number
 
     dims = np.array(occupied.shape)
     solid_faces = solid_part[parts.label]
@@ -62,8 +62,10 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
     region[tuple(slice(a, b) for a, b in zip(lo, hi))] = True
     free = np.argwhere(region & ~occupied)
     # closed parts have integer winding numbers: exact ray crossings; leaky ones need the generalized
-    w_all = crossing_number if (parts.watertight | ~solid_part).all() else winding_number
-    w_free = w_all(sv, sf, origin + pitch * (free + 0.5))
+    leaky_solids = not (parts.watertight | ~solid_part).all()
+    cone = boundary_cone(sv, sf) if leaky_solids else None         # one cone for every call below
+    w_free = (winding_number(sv, sf, origin + pitch * (free + 0.5), cone) if leaky_solids
+              else crossing_number(sv, sf, origin + pitch * (free + 0.5)))
     interior, w_interior = free[w_free > 0.5], w_free[w_free > 0.5]
 
     tight_part = solid_part & parts.watertight
@@ -123,7 +125,7 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
     if leaky.any():
         bcells = unique_cells(voxel_index(surf.points[leaky], origin, pitch, dims), dims)
         pts = origin + pitch * (bcells[:, None, :] + offs[None]).reshape(-1, 3)
-        inside = winding_number(sv, sf, pts) > 0.5
+        inside = winding_number(sv, sf, pts, cone) > 0.5          # leaky surface samples: a leaky solid part, so its cone
         if tight_part.any():        # not where a watertight part already counted the volume
             tf = parts.faces[tight_part[parts.label]]
             inside[inside] = crossing_number(vertices, tf, pts[inside]) < 0.5

@@ -100,7 +100,7 @@ def modal_converged(source: Any, auto: AutoResolution | None = None, *, voxel: V
     for row in table:
         row["converged"] = converged
     chosen.info.update(auto_tolerance=tol, auto_converged=converged)
-    return finish(chosen, req, {}, resolution_table=table)
+    return finish(chosen, req, resolution_table=table)
 
 
 def format_resolution_table(table: list[dict], n_show: int = 4) -> str:

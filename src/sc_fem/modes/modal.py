@@ -97,7 +97,7 @@ def modal(scene: Scene, *, n_modes: int | None = None, max_frequency: float | No
                        keep_lattice=keep_lattice, progress=progress)
     scene = _scene(scene)
     say(f"  voxelized: {scene.model.n_cubes} cubes, {scene.model.n_dofs} DOFs", progress)
-    return finish(solve_scene(scene, req), req, {})
+    return finish(solve_scene(scene, req), req)
 
 
 def _scene(scene: Any) -> Scene:

@@ -145,11 +145,11 @@ def _bake(asm, X: np.ndarray, W) -> tuple[np.ndarray, np.ndarray]:
     return np.ascontiguousarray(node.transpose(2, 0, 1)), np.ascontiguousarray(vert.transpose(2, 0, 1))
 
 
-def finish(s: Solved, req: ModalRequest, timings: dict, resolution_table: list | None = None) -> ModalBasis:
+def finish(s: Solved, req: ModalRequest, resolution_table: list | None = None) -> ModalBasis:
     """Bake the modes of ``s`` onto its scene's source mesh (or the lattice nodes): the ModalBasis."""
     scene = s.scene
     model = scene.model
-    timings = {**timings, **s.timings}
+    timings = dict(s.timings)
     t0 = time.perf_counter()
     node_modes, vertex_modes = _bake(s.asm, s.X, scene.W)
     timings["bake"] = time.perf_counter() - t0
