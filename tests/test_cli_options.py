@@ -36,7 +36,7 @@ def part(tmp_path_factory):
 @pytest.fixture
 def played(monkeypatch):
     """The frames ``sc-fem play`` would render (no rendering needed)."""
-    from sc_fem.io import render
+    from sc_fem.io import playback
 
     seen = {}
 
@@ -44,7 +44,7 @@ def played(monkeypatch):
         seen["frames"], seen["title"] = np.asarray(frames), kw.get("title", "")
         return path
 
-    monkeypatch.setattr(render, "render_animation", fake)
+    monkeypatch.setattr(playback, "render_animation", fake)   # where play_modes looks it up
     return seen
 
 

@@ -147,7 +147,7 @@ def test_auto_method_switches_to_lobpcg_when_the_factor_does_not_fit():
 
 
 def test_max_frequency_returns_every_mode_below_it(monkeypatch):
-    from sc_fem.fem import linsolve
+    from sc_fem.fem import eigen
 
     m = CubeModel.box((8, 2, 2), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
     many = modal(m, n_modes=30, fix="x<min+0")
@@ -155,8 +155,8 @@ def test_max_frequency_returns_every_mode_below_it(monkeypatch):
     i = 14 + int(np.argmax(np.diff(f[14:24]) > 1e-3 * f[14:23]))     # a gap, not inside a degenerate pair
     F = float(0.5 * (f[i] + f[i + 1]))
     calls = []
-    factorize = linsolve.factorize
-    monkeypatch.setattr(linsolve, "factorize", lambda *a, **k: calls.append(1) or factorize(*a, **k))
+    factorize = eigen.factorize
+    monkeypatch.setattr(eigen, "factorize", lambda *a, **k: calls.append(1) or factorize(*a, **k))
     sel = modal(m, max_frequency=F, fix="x<min+0")
     np.testing.assert_allclose(sel.frequencies, f[f < F], rtol=1e-8)
     assert sel.n_modes == i + 1 and "truncated" not in sel.eigen
@@ -193,7 +193,9 @@ def test_resolution_auto_picks_the_coarsest_converged_grid(monkeypatch):
     embed = importlib.import_module("sc_fem.lattice.embed")     # the module (sc_fem.embed is the function)
     baked = []
     embed_fn = embed.embedding
-    monkeypatch.setattr(embed, "embedding", lambda model, pts: baked.append(model.n_cubes) or embed_fn(model, pts))
+    for name in ("sc_fem.lattice.embed", "sc_fem.scene"):                 # every module that bakes by it
+        monkeypatch.setattr(importlib.import_module(name), "embedding",
+                            lambda model, pts: baked.append(model.n_cubes) or embed_fn(model, pts))
     grids = (10, 20, 30, 40)
     b = modal_converged("builtin:beam", AutoResolution(grids, tolerance=1e-3), n_modes=2,
                         fix="x<min+1e-6", voxel=VoxelOptions(fill="solid"))

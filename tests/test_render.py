@@ -253,11 +253,11 @@ def test_the_clock_draws_like_a_corner_annotation():
 
 def test_play_title_says_what_excited_the_model_and_the_magnification(tmp_path, monkeypatch):
     """A video states its excitation and its magnification (or true scale) in its title."""
-    import sc_fem.io.render as render
+    import sc_fem.io.playback as playback
     from sc_fem.io.playback import play_modes
 
     titles = []
-    monkeypatch.setattr(render, "render_animation", lambda frames, faces, out, **kw: titles.append(kw["title"]) or out)
+    monkeypatch.setattr(playback, "render_animation", lambda frames, faces, out, **kw: titles.append(kw["title"]) or out)
     basis = sc_fem.modal("builtin:beam", resolution=6, n_modes=3)
     play_modes(basis, tmp_path / "a.gif", impulse=(0, (1.0, 0.0, 0.0)), duration=0.1, fps=10, exaggerate=50.0)
     play_modes(basis, tmp_path / "b.gif", mode=1, duration=0.1, fps=10)

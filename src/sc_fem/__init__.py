@@ -68,6 +68,10 @@ from .fem.assemble import assemble  # noqa: E402
 from .lattice.embed import embed  # noqa: E402
 from .lattice.voxelize import voxelize  # noqa: E402
 
+# loaded by the voxelizer above anyway; the conveniences below use them
+from .errors import InputError  # noqa: E402
+from .lattice.options import VoxelOptions  # noqa: E402
+
 __all__ = sorted([*_LAZY, *_SUBMODULES, "assemble", "embed", "modal", "solve_static", "voxelize", "__version__"])
 
 
@@ -102,8 +106,7 @@ def modal(source: Any, *, voxel: Any = None, mesh: Any = None, fix: Any = None, 
     ModalBasis
         Frequencies (Hz) and mass-normalized mode shapes (m kg^-1/2) at the source vertices.
     """
-    from .errors import InputError
-    from .modes.modal import modal as modal_of_scene
+    from .modes.modal import modal as modal_of_scene           # scene, modes, fem: loaded on first use
     from .modes.options import AutoResolution
     from .scene import Scene
 
@@ -141,7 +144,7 @@ def solve_static(source: Any, *, fix: Any = None, fix_vertices: Any = None, poin
     StaticResult
         Node displacements (m), those of the points or mesh vertices (m), forces (N), timings.
     """
-    from .fem.static import solve_static as solve_scene
+    from .fem.static import solve_static as solve_scene        # scene, fem: loaded on first use
     from .scene import Scene
 
     return solve_scene(Scene.coerce(source, mesh=points if points is not None else mesh, fix=fix,
@@ -150,8 +153,6 @@ def solve_static(source: Any, *, fix: Any = None, fix_vertices: Any = None, poin
 
 def _grid(options: dict) -> dict:
     """The :class:`VoxelOptions` fields taken out of a convenience's ``options`` (the rest are the solver's)."""
-    from .lattice.options import VoxelOptions
-
     return {k: options.pop(k) for k in VoxelOptions.fields() if k in options}
 
 

@@ -11,6 +11,8 @@ import tempfile
 from pathlib import Path
 from typing import Iterator
 
+from .errors import OutputError
+
 
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
@@ -67,8 +69,6 @@ def check_output(path: str | os.PathLike, *, suffixes: tuple[str, ...] = (), fol
         Unsupported extension, an existing non-directory in the way, or a folder where no file can
         be created (checked by creating and removing a temporary file there).
     """
-    from .errors import OutputError
-
     path = Path(path)
     ext = path.suffix.lower()
     is_folder = folder and (ext == "" or path.is_dir())

@@ -11,6 +11,8 @@ try:  # optional: every compiled kernel has a numpy fallback
 except ImportError:  # pragma: no cover - exercised when numba is absent
     numba = None
 
+from .errors import InputError
+
 KERNELS = ("auto", "numba", "numpy")
 """Names accepted by the ``kernel=`` options."""
 
@@ -24,8 +26,6 @@ def choose_kernel(kernel: str, applicable: bool = True, not_applicable: str = ""
     """``"numba"`` or ``"numpy"`` for the requested ``kernel``: ``"auto"`` takes the compiled one
     when numba is installed and it ``applicable`` to the caller's settings; ``"numba"`` without
     numba, or where it does not apply (``not_applicable`` says why), is an InputError."""
-    from .errors import InputError
-
     if kernel not in KERNELS:
         raise InputError(f"kernel must be 'auto', 'numba' or 'numpy', got {kernel!r}")
     if kernel == "numba":

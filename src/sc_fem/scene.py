@@ -5,18 +5,21 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
-from typing import TYPE_CHECKING, Any, Iterable
+from typing import Any, Iterable
 
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
 
+from ._validate import as_points
 from .errors import InputError
+from .geometry.mesh import load_mesh
+from .geometry.models import expand_fix
+from .lattice.boundary import Fix, fixed_dofs, fixed_nodes
 from .lattice.cubes import CubeModel
-
-if TYPE_CHECKING:
-    from .lattice.boundary import Fix
-    from .lattice.embed import Embedding
+from .lattice.embed import Embedding, embedding
+from .lattice.options import VoxelOptions
+from .lattice.voxelize import voxelize
 
 
 @dataclass(frozen=True, eq=False)
@@ -73,10 +76,6 @@ class Scene:
         Scene
             The loaded mesh, its voxelized lattice and the fixed nodes.
         """
-        from .geometry.mesh import load_mesh
-        from .lattice.options import VoxelOptions
-        from .lattice.voxelize import voxelize
-
         options = VoxelOptions.coerce(options, **fields)       # a field given twice differently: an error
         mesh = load_mesh(source)
         model = voxelize(mesh, options)
@@ -176,9 +175,6 @@ class Scene:
         Scene
             ``model`` with ``mesh`` and the fixed nodes.
         """
-        from .lattice.boundary import fixed_nodes
-        from .geometry.models import expand_fix
-
         if not isinstance(model, CubeModel):
             raise InputError(f"model must be a CubeModel, got {type(model).__name__}")
         mesh = None if mesh is None else _source(mesh)
@@ -191,8 +187,6 @@ class Scene:
             specs = expand_fix(list(fix) if isinstance(fix, (list, tuple)) else [fix], source)
         emb = None
         if fix_vertices is not None:             # locating the vertices is the embedding: do it once
-            from .lattice.embed import embedding
-
             emb = embedding(model, np.asarray(mesh.vertices, dtype=float))
         nodes = fixed_nodes(model, specs, vertices=fix_vertices, mesh_embedding=emb)
         record = () if specs is None else tuple(str(s) for s in specs)
@@ -232,8 +226,6 @@ class Scene:
     @cached_property
     def embedding(self) -> Embedding:
         """Where the source vertices sit in the lattice (:class:`~sc_fem.Embedding`)."""
-        from .lattice.embed import embedding
-
         return embedding(self.model, self.rest_vertices)
 
     @property
@@ -306,8 +298,6 @@ class Scene:
     @property
     def fixed_dofs(self) -> np.ndarray:
         """Fixed degrees of freedom (3 per fixed node)."""
-        from .lattice.boundary import fixed_dofs
-
         return fixed_dofs(self.fixed_nodes)
 
     def fix_record(self) -> dict:
@@ -350,10 +340,6 @@ def _source(mesh: Any):
     if points:
         import trimesh
 
-        from ._validate import as_points
-
         return trimesh.Trimesh(vertices=as_points(mesh, "points"), faces=np.zeros((0, 3), dtype=np.int64),
                                process=False)
-    from .geometry.mesh import load_mesh
-
     return load_mesh(mesh)

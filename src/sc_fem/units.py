@@ -6,6 +6,8 @@ in other units is scaled to metres by its ``scale`` (see :mod:`sc_fem.lattice.cu
 
 from __future__ import annotations
 
+from .errors import InputError
+
 GRAVITY: float = 9.81
 """Standard gravity (m/s^2), the magnitude used wherever "gravity on" is asked for by name."""
 
@@ -27,8 +29,6 @@ def up_axis(up: str) -> int:
         0, 1 or 2.
     """
     if up not in AXES:
-        from .errors import InputError
-
         raise InputError(f"up must be one of {list(AXES)}, got {up!r}")
     return AXES.index(up)
 

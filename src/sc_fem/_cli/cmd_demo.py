@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from ..io.demo import run_demo
 from .common import command, finish
 
 
@@ -16,6 +17,4 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..io.demo import run_demo
-
     return finish(args, run_demo(args.output, resolution=args.resolution))

@@ -3,7 +3,8 @@ HTML page that plays the modes in real time)."""
 
 from __future__ import annotations
 
-from ..io.export import EXPORT_FORMATS
+from ..io.export import EXPORT_FORMATS, export_to_file
+from ..io.viewer import write_viewer
 from .common import add_amplitude_arg, add_impulse_arg, add_quiet, add_up_arg, command, finish, impulse_arg
 
 
@@ -48,16 +49,12 @@ def register(sub) -> None:
 
 
 def run_export(args) -> int:
-    from ..io.export import export_to_file
-
     return finish(args, export_to_file(args.source, args.output, amplitude=args.amplitude,
                                        impulse=impulse_arg(args.impulse), mode=args.mode, duration=args.duration,
                                        fps=args.fps, up=args.up, mesh=args.mesh, quantize=args.quantize))
 
 
 def run_view(args) -> int:
-    from ..io.viewer import write_viewer
-
     path = write_viewer(args.modes, args.output, amplitude=args.amplitude, up=args.up)
     if not args.quiet:
         print(f"wrote {path} ({path.stat().st_size / 1024:.0f} KiB): open it in a browser (file://{path.resolve()})")

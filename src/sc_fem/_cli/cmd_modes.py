@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+from ..fem.options import EigenOptions
+from ..io.playback import modes_sheet_to_file, play_modes
+from ..io.precompute import precompute_modes
+from ..modes.options import Damping
 from .common import (add_amplitude_arg, add_element_arg, add_fix_args, add_grid_args, add_impulse_arg,
                      add_material_args, add_mesh_arg, add_quiet, add_up_arg, command, finish, fix_options,
                      grid_options, impulse_arg)
@@ -72,12 +76,7 @@ def register(sub) -> None:
 
 
 def run_precompute(args) -> int:
-    from ..fem.options import EigenOptions
-    from ..io.precompute import precompute_modes
-    from ..modes.options import Damping
-
-    voxel, auto = grid_options(args)                   # --resolution N is voxel's; auto: the grids to try
-    options = dict(voxel=voxel, auto=auto, **fix_options(args), n_modes=args.modes, max_frequency=args.max_frequency,
+    options = dict(**grid_options(args), **fix_options(args), n_modes=args.modes, max_frequency=args.max_frequency,
                    element=args.element, lumped=args.lumped, keep_rigid=args.keep_rigid, keep_lattice=args.keep_lattice,
                    damping=Damping(ratio=args.damping, rayleigh=args.rayleigh),     # neither: the default ratio
                    eigen=EigenOptions(solver=args.eigensolver, backend=args.backend))
@@ -86,15 +85,11 @@ def run_precompute(args) -> int:
 
 
 def run_play(args) -> int:
-    from ..io.playback import play_modes
-
     return finish(args, play_modes(args.modes, args.output, impulse=impulse_arg(args.impulse), mode=args.mode,
                                    amplitude=args.amplitude, duration=args.duration, fps=args.fps,
                                    exaggerate=args.exaggerate, up=args.up, progress=not args.quiet))
 
 
 def run_sheet(args) -> int:
-    from ..io.playback import modes_sheet_to_file
-
     return finish(args, modes_sheet_to_file(args.modes, args.output, n_modes=args.count, columns=args.columns,
                                             up=args.up))

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 
 from ..errors import InputError
+from ..io.reconstruction import reconstruct_to_file
 from .common import command, finish
 
 
@@ -58,8 +59,6 @@ def _segments(text: str):
 
 
 def run(args) -> int:
-    from ..io.reconstruction import reconstruct_to_file
-
     try:
         frames = [int(v) for v in str(args.fit_frames).split(",") if v.strip() != ""]
     except ValueError:

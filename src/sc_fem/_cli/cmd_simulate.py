@@ -4,6 +4,8 @@ source mesh's vertex animation (:func:`sc_fem.io.simulation.simulate_to_file`)."
 from __future__ import annotations
 
 from .._validate import positive_scalar
+from ..dynamics.job import NewmarkOptions, XPBDOptions, frame_steps
+from ..io.simulation import simulate_to_file
 from ..units import gravity_down
 from .common import (add_element_arg, add_fix_args, add_grid_args, add_impulse_arg, add_material_args, add_mesh_arg,
                      add_quiet, add_up_arg, command, finish, fix_options, impulse_arg, voxel_options)
@@ -72,9 +74,6 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..dynamics.job import NewmarkOptions, XPBDOptions, frame_steps
-    from ..io.simulation import simulate_to_file
-
     for name, flag in (("duration", "--duration"), ("dt", "--dt"), ("fps", "--fps"), ("magnify", "--exaggerate")):
         if getattr(args, name) is not None:
             positive_scalar(getattr(args, name), flag)      # checked before any work, named as typed

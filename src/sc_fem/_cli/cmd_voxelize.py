@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from ..io.voxelize import voxelize_to_file
 from .common import (add_grid_args, add_material_args, add_mesh_arg, add_quiet, add_up_arg, command, finish,
                      voxel_options)
 
@@ -19,7 +20,5 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..io.voxelize import voxelize_to_file
-
     job = voxelize_to_file(args.mesh, args.output, voxel_options(args), up=args.up, verbose=not args.quiet)
     return finish(args, job)

@@ -8,6 +8,11 @@ import math
 import sys
 
 from ..errors import InputError
+from ..fem.elements import DEFAULT_ELEMENT, ELEMENTS
+from ..fem.highorder import DEGREES
+from ..lattice.boundary import read_vertex_file
+from ..lattice.options import VoxelOptions
+from ..modes.options import AutoResolution
 
 
 def command(sub, name: str, run, *, outputs: tuple = (), folder: bool = False, **kw) -> argparse.ArgumentParser:
@@ -79,12 +84,10 @@ def add_material_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mass", type=float, default=None, help="total mass in kg (overrides density)")
 
 
-def grid_options(args: argparse.Namespace) -> tuple:
-    """``(VoxelOptions, AutoResolution or None)`` of the grid/material options of ``args``: the one
-    place ``--resolution`` is read (a number, or ``auto`` with ``--tolerance`` for the modal command)."""
-    from ..lattice.options import VoxelOptions
-    from ..modes.options import AutoResolution
-
+def grid_options(args: argparse.Namespace) -> dict:
+    """``{"voxel": VoxelOptions, "auto": AutoResolution or None}`` of the grid/material options of ``args``
+    (keywords of :func:`sc_fem.io.batch.mesh_modes`): the one place ``--resolution`` is read (a number, or
+    ``auto`` with ``--tolerance`` for the modal command); past here the options carry it unopened."""
     res, tol = getattr(args, "resolution", None), getattr(args, "tolerance", None)
     auto = isinstance(res, str) and res.strip().lower() == "auto"
     if isinstance(res, str) and not auto and not res.strip().lstrip("-").isdigit():
@@ -95,12 +98,12 @@ def grid_options(args: argparse.Namespace) -> tuple:
     same = ("pitch", "scale", "fill", "occupancy", "keep", "topology", "weld", "shell_thickness", "stiffness",
             "youngs", "poisson", "density", "mass")              # VoxelOptions' fields spelled as the options
     voxel = VoxelOptions(resolution=None if auto else res, **{k: getattr(args, k) for k in same})
-    return voxel, (AutoResolution(**({} if tol is None else {"tolerance": tol})) if auto else None)
+    return {"voxel": voxel, "auto": AutoResolution(**({} if tol is None else {"tolerance": tol})) if auto else None}
 
 
 def voxel_options(args: argparse.Namespace):
     """The :class:`sc_fem.VoxelOptions` of the grid/material options of ``args`` (:func:`grid_options`)."""
-    return grid_options(args)[0]
+    return grid_options(args)["voxel"]
 
 
 def add_fix_args(p: argparse.ArgumentParser) -> None:
@@ -116,8 +119,6 @@ def add_fix_args(p: argparse.ArgumentParser) -> None:
 def fix_options(args) -> dict:
     """``fix`` and ``fix_vertices`` (:meth:`sc_fem.Scene.from_mesh`, :func:`sc_fem.modal`) of
     ``--fix`` and ``--fix-vertices``."""
-    from ..lattice.boundary import read_vertex_file
-
     return dict(fix=list(args.fix or []) or None,
                 fix_vertices=read_vertex_file(args.fix_vertices) if args.fix_vertices else None)
 
@@ -153,9 +154,6 @@ def impulse_arg(values) -> tuple[int, tuple] | None:
 def add_element_arg(p: argparse.ArgumentParser, *, higher_order: bool = False) -> None:
     """``--element``: the cube elements of :data:`sc_fem.fem.elements.ELEMENTS`, and with
     ``higher_order`` the degree-2 and 3 cubes of :mod:`sc_fem.fem.highorder` (linear analyses)."""
-    from ..fem.elements import DEFAULT_ELEMENT, ELEMENTS
-    from ..fem.highorder import DEGREES
-
     choices = ELEMENTS + (tuple(DEGREES) if higher_order else ())
     extra = ("; q2, q3: degree-2 / 3 fields in every cube, for thin-walled members (slower, far more "
              "accurate in torsion)") if higher_order else ""

@@ -15,6 +15,7 @@ from __future__ import annotations
 import time as _time
 from collections.abc import Sequence
 from dataclasses import replace
+from functools import cache, partial
 
 import numpy as np
 import scipy.sparse as sp
@@ -27,10 +28,8 @@ from ..fem.elements import DEFAULT_ELEMENT
 from ..errors import BoundaryConditionError, InputError, SolverError
 from ..lattice.cubes import CubeModel
 from ..fem.options import DynamicOptions
-from ..fem.linsolve import MassSolver, SystemSolver, factorize
-from ..fem.rigid import rigid_body_modes
-from ..fem.multigrid import lattice_aggregates
-from ..fem.static import node_parts
+from ..fem.linsolve import Lag, MassSolver, SystemSolver, factorize
+from ..fem.static import lattice_amg_data
 from .contact import Contact
 from .loads import LoadSet
 from .state import Energy, State
@@ -281,16 +280,17 @@ class AssembledIntegrator(TimeIntegrator):
         if self.contact is not None:
             self.contact.check_initial(u)
         self._u, self._v = self.asm.restrict(u), self.asm.restrict(v)
-        self._mass_solver, self._amg_data = None, None
+        # the AMG's near-null space and finest aggregates: built at its first set-up, if any, and kept
+        self._mass_solver, self._amg_data = None, cache(partial(lattice_amg_data, model, self.asm.free_dofs))
         self._a = self._initial_acceleration()
 
     # ------------------------------------------------------------------ helpers
-    def _linear_solver(self, A: sp.spmatrix) -> SystemSolver:
-        """Solver of ``A x = b`` (``A`` SPD, free DOFs) by :attr:`solver_options`: direct or CG + AMG."""
-        if self._amg_data is None:                   # the AMG's near-null space and finest aggregates
-            fd, m = self.asm.free_dofs, self.model
-            self._amg_data = (rigid_body_modes(m.nodes_m, fd), lattice_aggregates(m, node_parts(m), fd))
-        return self.solver_options.solver_for(A, near_null=self._amg_data[0], aggregates=self._amg_data[1])
+    def _linear_solver(self, A: sp.spmatrix, lag: Lag | None = None) -> SystemSolver:
+        """Solver of ``A x = b`` (``A`` SPD, free DOFs) by :attr:`solver_options`: direct (lagging by ``lag``)
+        or CG + AMG (:func:`~sc_fem.fem.static.lattice_amg_data` built at its first set-up)."""
+        solver = self.solver_options.solver_for(A)
+        solver.amg_data, solver.lag = self._amg_data, lag
+        return solver
 
     def damping(self, v: np.ndarray, K: sp.spmatrix | None = None) -> np.ndarray:
         """Damping force ``C v = a0 M v + a1 K v`` on the free DOFs.

@@ -49,6 +49,7 @@ import numpy as np
 from .._validate import as_float_array, as_points, positive_scalar
 from ..errors import InputError
 from ..lattice.cubes import CubeModel
+from ..lattice.embed import embed
 
 TOL_FRACTION = 1e-6
 """Default depth tolerance as a fraction of the cube pitch."""
@@ -145,8 +146,6 @@ class Contact:
 
     def __init__(self, model: CubeModel, points, obstacles: Sequence, *, tol: float | None = None,
                  restitution: float = 0.0, max_passes: int = 20, W=None) -> None:
-        from ..lattice.embed import embed
-
         self.model = model
         self.rest = as_points(points, "points")
         if not obstacles:

@@ -44,7 +44,8 @@ Where the passes start, and what happens when they do not converge (:meth:`Corot
 ``S`` is solved by conjugate gradients preconditioned with the factorization of an earlier step's
 ``S`` -- the rotations change little between steps -- and refactorized only when CG needs more
 than ``max_cg`` iterations; with CG + AMG (``solver``, :class:`~sc_fem.fem.options.DynamicOptions`)
-by CG preconditioned with the AMG hierarchy of an earlier step's ``S``, set up again when CG slows. No step loops over cubes or materials. Cost against linear Newmark and
+by CG preconditioned with the AMG hierarchy of an earlier step's ``S``, set up again when CG slows: one
+:class:`~sc_fem.fem.linsolve.SystemSolver` for the run, updated every step. No step loops over cubes or materials. Cost against linear Newmark and
 how to reproduce it: ``docs/corotational.md``.
 """
 
@@ -56,7 +57,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..fem.elements import DEFAULT_ELEMENT, cube_stiffness
-from ..fem.linsolve import Factorization, SystemSolver, factorize
+from ..fem.linsolve import Lag, SystemSolver
 from ..errors import InputError
 from ..lattice.cubes import CubeModel
 from .kinematics import cube_rotations
@@ -122,9 +123,6 @@ class Corotational(Newmark):
         self.cg_rtol = float(cg_rtol)
         if not 0.0 < self.cg_rtol < 1.0:
             raise InputError(f"cg_rtol must lie in (0, 1), got {cg_rtol!r}")
-        self._pre, self._stale = None, False                    # factorization reused as preconditioner
-        self.n_factorizations = 0
-        self.cg_iterations = 0
         self.n_relinearised = 0                                 # steps restarted from the linearised pass
         self.n_newton = 0                                       # steps finished by Newton's method
         # per-cube element matrices, N/m, (n, 24, 24); needed by the base class's __init__
@@ -241,22 +239,22 @@ class Corotational(Newmark):
         return Kt
 
     @property
-    def info(self) -> dict:
-        """:attr:`Newmark.info <sc_fem.dynamics.newmark.Newmark.info>` with the direct path's
-        factorizations and CG iterations (``n_factorizations``, ``cg_iterations``) added in."""
-        out = super().info
-        if out:
-            out.update(factorizations=out["factorizations"] + self.n_factorizations,
-                       cg_iterations=out["cg_iterations"] + self.cg_iterations)
-        return out
+    def n_factorizations(self) -> int:
+        """Factorizations of the effective matrix so far."""
+        return 0 if self._S is None else self._S.stats["factorizations"]
 
-    def effective_solver(self, u: np.ndarray) -> Factorization | _LaggedFactor | SystemSolver:
-        """Solver of this step's ``S(u)``. Direct (``solver_options``, below the automatic choice's
-        threshold): conjugate gradients preconditioned by the factorization of an earlier step's ``S``
-        (the rotations change little from step to step), refactorized when CG needs more than
-        ``max_cg`` iterations; ``max_cg=0`` factorizes every step. CG + AMG: the AMG hierarchy of an
-        earlier step's ``S`` preconditions this one's, set up again when CG slows
-        (:class:`~sc_fem.fem.linsolve.SystemSolver`).
+    @property
+    def cg_iterations(self) -> int:
+        """CG iterations of the effective matrix's solves so far (lagged direct, or CG + AMG)."""
+        return 0 if self._S is None else self._S.stats["iterations"]
+
+    def effective_solver(self, u: np.ndarray) -> SystemSolver:
+        """Solver of this step's ``S(u)``: one :class:`~sc_fem.fem.linsolve.SystemSolver` for the run, updated
+        with every ``S`` and lagging. Direct (``solver_options``, below the automatic choice's threshold):
+        conjugate gradients preconditioned by the factorization of an earlier step's ``S`` (the rotations
+        change little from step to step), refactorized when CG needs more than ``max_cg`` iterations
+        (:class:`~sc_fem.fem.linsolve.Lag`; ``max_cg=0`` factorizes every step). CG + AMG: the AMG hierarchy
+        of an earlier step's ``S`` preconditions this one's, set up again when CG slows.
 
         Parameters
         ----------
@@ -265,21 +263,16 @@ class Corotational(Newmark):
 
         Returns
         -------
-        Factorization, _LaggedFactor or SystemSolver
+        SystemSolver
             ``solve(r)``: ``S^-1 r``, residual force (N) to acceleration (m/s^2).
         """
         S = self._effective(self.tangent(u))
         if self._S is None:
-            self._S = self._linear_solver(S)
-        elif self._S.kind == "cg-amg":
+            lag = Lag(refactor=self.max_cg, maxiter=4 * self.max_cg, rtol=self.cg_rtol) if self.max_cg else None
+            self._S = self._linear_solver(S, lag)
+        else:
             self._S.update(S)
-        if self._S.kind == "cg-amg":
-            return self._S
-        if self._pre is None or self._stale or self.max_cg == 0:
-            self._pre, self._stale = factorize(S, self.backend), False
-            self.n_factorizations += 1
-            return self._pre
-        return _LaggedFactor(S, self)
+        return self._S
 
     # ------------------------------------------------------------------ step
     def _advance(self, u, v, a, t0, t1):
@@ -369,34 +362,3 @@ class Corotational(Newmark):
 def _mnorm(x: np.ndarray, Mx: np.ndarray) -> float:
     """Mass norm ``sqrt(x . M x)`` of a free-DOF field ``x`` given ``M x``."""
     return float(np.sqrt(max(float(x @ Mx), 0.0)))
-
-
-class _LaggedFactor:
-    """``solve(b)``: ``S x = b`` by CG preconditioned with the owner's (older) factorization."""
-
-    def __init__(self, S, owner: "Corotational") -> None:
-        self.S, self.owner = S, owner
-        self.exact = False                   # the owner's factor is of this S (refactorized mid-step)
-
-    def solve(self, b: np.ndarray) -> np.ndarray:
-        from scipy.sparse.linalg import LinearOperator, cg
-
-        o = self.owner
-        if self.exact:
-            return o._pre.solve(b)
-        pre = LinearOperator(self.S.shape, matvec=o._pre.solve, dtype=float)
-        count = [0]
-
-        def tick(_):
-            count[0] += 1
-
-        x, info = cg(self.S, b, rtol=o.cg_rtol, atol=0.0, maxiter=4 * max(o.max_cg, 1), M=pre, callback=tick)
-        o.cg_iterations += count[0]
-        if info != 0:                        # the old factor no longer preconditions well: refactorize now
-            o._pre = factorize(self.S, o.backend)
-            o.n_factorizations += 1
-            self.exact = True
-            return o._pre.solve(b)
-        if count[0] > o.max_cg:
-            o._stale = True                  # refactorize at the next step
-        return x

@@ -22,7 +22,8 @@ at the CCD's collision-free step and halves until ``E`` decreases: every state i
 intersection-free by construction and the step is stable at any ``dt``. When no pair is within
 ``dhat`` and there is no friction, ``E`` is the quadratic of linear implicit Euler: one
 back-solve with a factorization kept for the run (the fast path), or for large models
-(``solver``) a CG solve preconditioned by algebraic multigrid set up once.
+(``solver``) a CG solve preconditioned by algebraic multigrid set up once. The Hessians with contact
+are solved by one :class:`~sc_fem.fem.linsolve.SystemSolver` that lags (:data:`CONTACT_LAG`).
 
 The collision meshes -- the source mesh, the static obstacles (:class:`~sc_fem.dynamics.contact.Ground`,
 ``Sphere``, ``Box``) and the lattice's outer surface for self-contact -- are built in :mod:`.collision`;
@@ -39,24 +40,21 @@ import numpy as np
 
 from .._validate import positive_scalar
 from ..errors import InputError, InstabilityError
-from ..fem.linsolve import factorize
+from ..fem.linsolve import Lag
 from .barrier import BarrierContact
 from .base import AssembledIntegrator
 from .collision import ContactState, require_ipctk
 from .state import Energy
 
-CG_RTOL = 1e-8
-"""Relative residual of the conjugate-gradient solves of a Newton step with contact."""
-
 MAX_HALVINGS = 3
 """A step whose Newton solve does not converge is cut in two, at most this many times nested."""
 
-CG_REFACTOR = 8
-"""CG iterations of a contact solve past which the next one factorizes its Hessian (and keeps
-the factor as the preconditioner of the ones after it)."""
-
-CG_MAXITER = 40
-"""CG iterations after which a contact solve factorizes its Hessian at once."""
+CONTACT_LAG = Lag(refactor=8, maxiter=40, rtol=1e-8)
+"""The direct solves of the Hessians with contact: CG to a relative residual of 1e-8, preconditioned
+with the latest factorization (first that of the step's ``S`` without contact, then that of an
+earlier Newton iteration's Hessian); a solve past 8 CG iterations makes the next one factorize its
+Hessian (and keep the factor as the preconditioner of the ones after it), one not converged in 40
+factorizes at once."""
 
 
 class _NotConverged(Exception):
@@ -68,10 +66,8 @@ class _Step:
     """Counters of the Newton iterations of a run (``IPC.info``)."""
 
     newton: int = 0
-    factorizations: int = 0
     contact_steps: int = 0
     line_search_cuts: int = 0
-    cg_iterations: int = 0
     halvings: int = 0
 
 
@@ -122,10 +118,10 @@ class IPC(AssembledIntegrator):
         a0, a1 = self.rayleigh
         self._C = None if not (a0 or a1) else (a0 * self.M + a1 * self.K).tocsr()
         self._levels: dict = {}       # step length -> (S, its SystemSolver)
-        self._hsys = None             # CG + AMG: the SystemSolver of the contact Hessians
+        self._hsys = None             # the SystemSolver of the contact Hessians
+        self._hsys_h = None           # the step length whose S last preconditioned it
         self._h = self.dt             # the length of the (sub)step being solved
         self._S, self._Sfac = self._level(self.dt)
-        self._pre, self._pre_h, self._stale = self._Sfac, self.dt, False
         self._mass_avg = float(self.M.diagonal().mean()) if self.M.shape[0] else 1.0
         if contact is not None:
             contact.bind(self.asm.free_dofs)
@@ -153,9 +149,9 @@ class IPC(AssembledIntegrator):
         s, c = self.stats, self.barrier
         sys_ = [lv[1] for lv in self._levels.values()] + ([self._hsys] if self._hsys is not None else [])
         return {"newton_iterations": s.newton, "contact_steps": s.contact_steps, "linear_solver": self._Sfac.kind,
-                "factorizations": s.factorizations + sum(x.stats["factorizations"] for x in sys_),
-                "amg_setups": sum(x.stats["setups"] for x in sys_),
-                "line_search_cuts": s.line_search_cuts, "cg_iterations": s.cg_iterations,
+                "factorizations": sum(x.stats["factorizations"] for x in sys_),
+                "amg_setups": sum(x.stats["setups"] for x in sys_), "line_search_cuts": s.line_search_cuts,
+                "cg_iterations": 0 if self._hsys is None else self._hsys.stats["iterations"],
                 "halvings": s.halvings,
                 "dhat": None if c is None else c.dhat, "friction": None if c is None else c.friction,
                 "ground_shift": None if c is None else c.ground_shift,
@@ -212,39 +208,19 @@ class IPC(AssembledIntegrator):
         self._kappa_max = max(kmax, self._kappa_max or 0.0)
 
     def _solve_contact(self, H, g: np.ndarray) -> np.ndarray:
-        """``H^-1 g`` for ``H = S + (contact Hessian)``: conjugate gradients preconditioned with the
-        latest factorization (first ``S``'s, then that of an earlier Newton iteration's ``H``: while
-        the contacts change little it preconditions well). A solve that needs more than
-        ``CG_REFACTOR`` iterations makes the next one factorize its ``H`` (kept as the new
-        preconditioner); CG that does not converge in ``CG_MAXITER`` factorizes at once. With CG +
-        AMG (``solver``) the AMG hierarchy of an earlier Hessian preconditions instead, set up again
-        on the current one when CG slows (:class:`~sc_fem.fem.linsolve.SystemSolver`)."""
-        from scipy.sparse.linalg import LinearOperator, cg
-
-        if self._Sfac.kind == "cg-amg":       # CG + AMG: an earlier Hessian's hierarchy preconditions this one
-            if self._hsys is None:
-                self._hsys = self._linear_solver(H)
-            else:
-                self._hsys.update(H)
-            before = self._hsys.stats["iterations"]
-            y = self._hsys.solve(g)
-            self.stats.cg_iterations += self._hsys.stats["iterations"] - before
-            return y
-        if not self._stale:
-            count = [0]
-
-            def tick(_):
-                count[0] += 1
-
-            pre = LinearOperator(H.shape, matvec=self._pre.solve, dtype=float)
-            y, info = cg(H, g, rtol=CG_RTOL, atol=0.0, maxiter=CG_MAXITER, M=pre, callback=tick)
-            self.stats.cg_iterations += count[0]
-            self._stale = count[0] > CG_REFACTOR
-            if info == 0:
-                return y
-        self._pre, self._stale = factorize(H, self.backend), False
-        self.stats.factorizations += 1
-        return self._pre.solve(g)
+        """``H^-1 g`` for ``H = S + (contact Hessian)`` by the contact Hessians' one
+        :class:`~sc_fem.fem.linsolve.SystemSolver`, updated with every ``H``: direct, CG preconditioned
+        with the latest factorization (:data:`CONTACT_LAG`; first ``S``'s, again whenever the step length
+        changes); CG + AMG, the AMG hierarchy of an earlier Hessian, set up again on the current one when
+        CG slows."""
+        if self._hsys is None:
+            self._hsys = self._linear_solver(H, CONTACT_LAG)
+        else:
+            self._hsys.update(H)
+        if self._hsys_h != self._h:           # a new step length: its S's factorization preconditions
+            self._hsys.precondition_with(self._level(self._h)[1])
+            self._hsys_h = self._h
+        return self._hsys.solve(g)
 
     # ------------------------------------------------------------------ one step
     def _advance(self, u, v, a, t0, t1):
@@ -285,8 +261,6 @@ class IPC(AssembledIntegrator):
         c = self.barrier
         self._h = h
         S, Sfac = self._level(h)
-        if self._pre_h != h:
-            self._pre, self._pre_h, self._stale = Sfac, h, False
         f = self.external_force(t1)
         ut = u + h * v
         x = u.copy()

@@ -10,9 +10,13 @@ import numpy as np
 
 from .._validate import as_float_array, positive_scalar
 from ..errors import InputError
+from ..fem.elements import DEFAULT_ELEMENT
 from ..fem.options import DynamicOptions
 from ..scene import Scene
 from ..units import up_axis
+from .contact import obstacles_from
+from .driver import METHODS, make_integrator, record
+from .loads import Gravity, LoadSet, VertexForce, half_sine, impulse_nodes as spread_impulses
 from .newmark import NewmarkOptions
 from .xpbd import XPBDOptions
 
@@ -46,8 +50,6 @@ def check_supported(method: str, cls, requested) -> None:
 def impulse_nodes(scene, impulses) -> np.ndarray | None:
     """Impulses ``[(vertex, Jx, Jy, Jz), ...]`` (N s) on source vertices as node impulses, spread
     over the mass around each vertex (:func:`sc_fem.dynamics.loads.impulse_nodes`)."""
-    from .loads import impulse_nodes as spread
-
     if impulses is None or not len(impulses):
         return None
     n = scene.rest_vertices.shape[0]
@@ -59,7 +61,7 @@ def impulse_nodes(scene, impulses) -> np.ndarray | None:
     bad = ~(np.mod(idx, 1) == 0) | (idx < 0) | (idx >= n)
     if np.any(bad):
         raise InputError(f"impulse VERTEX must be a vertex index in [0, {n}), got {idx[bad][0]:g}")
-    return spread(scene.model, scene.rest_vertices, idx.astype(np.int64), arr[:, 1:])
+    return spread_impulses(scene.model, scene.rest_vertices, idx.astype(np.int64), arr[:, 1:])
 
 
 def default_dt(method: str, fps: float) -> float:
@@ -68,8 +70,6 @@ def default_dt(method: str, fps: float) -> float:
     the implicit methods (stable at any step; the frame rate is what the animation resolves), one
     frame for XPBD (its substeps divide it). Central differences take ``0.9 dt_crit`` instead
     (:func:`run_simulation`; this is the step it starts from)."""
-    from .driver import METHODS
-
     return 1.0 / (fps * (METHODS[method].steps_per_frame or 2))
 
 
@@ -162,11 +162,6 @@ def run_simulation(scene, *, duration: float, dt: float | None = None, method: s
         With ``points`` (T, n, 3) model units and ``info``: the run's record for the output file,
         and ``info["warnings"]`` (e.g. energy grown with nothing feeding it).
     """
-    from ..fem.elements import DEFAULT_ELEMENT
-    from .contact import obstacles_from
-    from .driver import METHODS, make_integrator, record
-    from .loads import Gravity, LoadSet, VertexForce, half_sine
-
     Scene.check(scene, "sc_fem.dynamics.job.run_simulation", "sc_fem.io.simulation.simulate_to_file(mesh, ...)")
     dt_given = dt
 

@@ -34,6 +34,7 @@ import scipy.sparse as sp
 from .._validate import as_float_array, as_indices, as_points
 from ..errors import InputError
 from ..lattice.cubes import CubeModel
+from ..lattice.embed import embed
 from ..units import GRAVITY
 
 Profile = Callable[[float], float]
@@ -151,8 +152,6 @@ class LoadSet:
         self._timed: list[tuple[np.ndarray, Profile]] = []
         pts = None if points is None else as_points(points, "points")
         if W is None and pts is not None:
-            from ..lattice.embed import embed
-
             W = embed(model, pts)
         self.W = None if W is None else sp.csr_matrix(W)
         if self.W is not None and pts is not None and self.W.shape != (len(pts), m):
@@ -242,8 +241,6 @@ def impulse_nodes(model: CubeModel, points, vertices, impulses, *, radius: float
     ndarray, shape (m, 3)
     """
     from scipy.spatial import cKDTree
-
-    from ..lattice.embed import embed
 
     pts = as_points(points, "points")
     idx = as_indices(vertices, len(pts), "impulse vertices")

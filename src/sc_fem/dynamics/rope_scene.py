@@ -11,7 +11,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .._validate import positive_int, positive_scalar
+from ..geometry import models
 from ..lattice.cubes import CubeModel
+from ..lattice.embed import embed
+from ..lattice.voxelize import voxelize
 from .xpbd import XPBDSolver
 
 if TYPE_CHECKING:
@@ -111,13 +114,8 @@ def rope_scene(n_frames: int = 201, fps: float = 60.0, resolution: int = 40, sub
     RopeScene
         Curves, vertices and nodes per frame (model units), and the timings.
     """
-    from ..lattice.embed import embed
-    from ..lattice.voxelize import voxelize
-
     n_frames = positive_int(n_frames, "n_frames")
     fps = positive_scalar(fps, "fps")
-    from ..geometry import models
-
     t0 = _time.perf_counter()
     if mesh is None:
         mesh = models.load("rope")

@@ -19,6 +19,7 @@ from ..lattice.cubes import CubeModel
 from .kinematics import DN_CENTRE, centre_F, cube_rotations, polar_rotation
 from .xpbd_kernels import (L_REF, MATCHING_KIND, MATCHINGS, S_REF, _scatter_add, _volume_terms, corotational_terms,
                            cube_colors, neohookean_terms)
+from .xpbd_jit import nh_sweep
 
 CONSTRAINTS = ("corotational", "neohookean", "distance")
 """The constraint families :class:`ConstraintSet` knows."""
@@ -224,8 +225,6 @@ class ConstraintSet:
         if self.kind == "corotational":
             self._update_rotations(x)
         if kernel == "numba":
-            from .xpbd_jit import nh_sweep
-
             nh_sweep(x, self._hexes64, self._order, self.w, self._lamD, self._lamH, a_t[0], a_t[1],
                      self._gamma, L_REF, DN_CENTRE, self.h)
             return

@@ -34,6 +34,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
 
+from .._jit import choose_kernel
 from .._progress import stage_bar
 from .._validate import as_float_array, as_indices
 from .generic import assemble_skfem
@@ -41,6 +42,7 @@ from .elements import (DEFAULT_ELEMENT, check_element, cube_mass_chunks, cube_st
                        stiffness_chunks)
 from ..errors import InputError
 from ..lattice.cubes import HEX_CORNERS, CubeModel
+from ..material import lame
 
 _CHUNK = 2048
 """Cubes per scatter chunk (keeps the (chunk, 576) value and slot blocks in cache)."""
@@ -134,8 +136,6 @@ class Assembler:
 
     def __init__(self, model: CubeModel, element: str = DEFAULT_ELEMENT, *, fixed_dofs: ArrayLike | None = None,
                  cache_slots: bool | None = None, kernel: str = "auto") -> None:
-        from .._jit import choose_kernel            # optional numba, imported on first use
-
         if not isinstance(model, CubeModel):
             raise InputError(f"model must be a CubeModel, got {type(model).__name__}")
         self.kernel = choose_kernel(kernel)
@@ -313,8 +313,6 @@ class Assembler:
                 raise InputError(f"element_matrices must have shape ({n}, 24, 24), got {km.shape}")
             flat = km.reshape(n, 576)
             return self._scatter(lambda s, e: flat[s:e], refill=True)
-        from ..material import lame
-
         if youngs is None and poisson is None:
             # the model's partial-cube stiffness (finite-cell moments or fraction-scaled)
             return self._scatter(cube_stiffness_chunks(self.model, self.element))

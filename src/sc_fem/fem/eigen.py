@@ -41,18 +41,21 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
+import scipy.sparse.linalg as sla
 from scipy.sparse.linalg import LinearOperator, eigsh
 
+from .._jit import blas_single_threaded
 from .._log import logger
 from .._progress import counting, stage_bar
 from .._validate import positive_int
 from ..errors import InputError, SolverError
-# EigenOptions and lobpcg_memory_estimate are re-exported: the eigensolver's names stay importable from here
 from .bsr import node_blocks
+from .linsolve import factorize
 from .multigrid import LatticeAMG
 from .spmm import BlockProduct
-from .options import (METHODS, EigenOptions, choose_method, factor_memory_estimate,  # noqa: F401
-                      lobpcg_memory_estimate, memory_budget)
+# EigenOptions and lobpcg_memory_estimate are re-exported: the eigensolver's names stay importable from here
+from .options import (METHODS, EigenOptions, choose_method, factor_memory_estimate, fill_analysis,  # noqa: F401
+                      lobpcg_memory_estimate, memory_budget, predicted_seconds)
 
 _LOG = logger.getChild("eigen")
 
@@ -240,8 +243,6 @@ class EigenSolver:
         self._shifted = self._analysis = None  # K - sigma M and its fill (FillAnalysis), from _setup to _build
 
     def _setup(self, k: int) -> None:
-        from .options import fill_analysis, predicted_seconds
-
         self._shifted, self.reason = shifted(self.K, self.M, self.sigma), "requested"
         if self.method == "auto":     # shift-invert predicted from the fill of K - sigma M (CHOLMOD + numba)
             self._analysis = a = fill_analysis(self._shifted, self.backend)
@@ -255,8 +256,6 @@ class EigenSolver:
         t0 = time.perf_counter()
         A, self._shifted = (self._shifted if self._shifted is not None else shifted(self.K, self.M, self.sigma)), None
         if self.method == "shift-invert":
-            from .linsolve import factorize
-
             fac = factorize(A, self.backend, self._analysis)     # CHOLMOD reuses the ordering of _setup
             self._analysis = self._analysis and replace(self._analysis, factor=None)   # the numbers stay
             self.backend = fac.backend
@@ -308,14 +307,10 @@ class EigenSolver:
     def _lobpcg(self, k: int) -> tuple[np.ndarray, dict]:
         import warnings
 
-        from scipy.sparse.linalg import lobpcg
-
         m = min(self.n - 1, k + max(4, k // 4))   # a few extra vectors speed convergence
         X = np.random.default_rng(self.seed).standard_normal((self.n, m))
         if (B := self.near_null) is not None:      # start in the rigid space: those modes converge at once
             X[:, :min(B.shape[1], m)] = B[:, :min(B.shape[1], m)]
-        from .._jit import blas_single_threaded
-
         Ap, Mp = self._products
         A_op = LinearOperator(Ap.A.shape, matvec=Ap, matmat=Ap, dtype=np.float64)
         with warnings.catch_warnings(), blas_single_threaded(), stage_bar("eigensolve (LOBPCG)") as bar:
@@ -341,7 +336,7 @@ class EigenSolver:
             its, rounds, stalls, stop, prev = 0, 0, 0, "converged", None
             while True:
                 asked = min(LOBPCG_ROUNDS[rounds > 0], self.maxiter - its)
-                lam, V, hist = lobpcg(A_op, X, B=Mp.operator(), M=counting(bar, self._op, tol_abs, (k, m)),
+                lam, V, hist = sla.lobpcg(A_op, X, B=Mp.operator(), M=counting(bar, self._op, tol_abs, (k, m)),
                                       tol=tol_abs, maxiter=asked, largest=False, retResidualNormsHistory=True)
                 its, rounds = its + len(hist), rounds + 1
                 stalled = len(hist) < asked            # it ended the round before maxiter on its own

@@ -23,6 +23,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .._jit import compiled
+from .factorization import resolve_backend
 
 
 def _column_counts(indptr: np.ndarray, indices: np.ndarray, perm: np.ndarray) -> np.ndarray:
@@ -126,8 +127,6 @@ def analyze_fill(A: sp.spmatrix, backend: str = "auto") -> FillAnalysis | None:
     FillAnalysis or None
         None when the backend is not CHOLMOD (scikit-sparse) or numba is missing.
     """
-    from .linsolve import resolve_backend
-
     if resolve_backend(backend) != "cholmod" or _column_counts_jit is None:
         return None
     from sksparse.cholmod import analyze

@@ -16,6 +16,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..lattice.cubes import HEX_CORNERS
+from ..lattice.moments import FULL, monomials
 from .hexahedron import check_element
 
 
@@ -41,8 +42,6 @@ def _polynomial_parts(element: str) -> dict[str, np.ndarray]:
     (27, 24, 24) (``mass``) and (27, 33, 3, 3) (``grad``: the displacement gradient of every mode),
     read-only.
     """
-    from ..lattice.moments import monomials
-
     g, _ = np.polynomial.legendre.leggauss(3)
     g = 0.5 * (g + 1.0)
     x = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)   # (27, 3)
@@ -154,8 +153,6 @@ PARTIAL_BELOW = 1.0 - 1e-12
 def _with_fcm_share(moments) -> np.ndarray:
     """Moments (n, 27) of the filled region plus :data:`FCM_ALPHA` of the full cube's for partly
     filled cubes (the finite cell method's regularisation)."""
-    from ..lattice.moments import FULL
-
     M = np.asarray(moments, dtype=np.float64)
     return M + FCM_ALPHA * (M[:, :1] < PARTIAL_BELOW) * FULL
 

@@ -1,218 +1,25 @@
-"""Sparse symmetric positive-definite factorization with a choice of backend.
-
-``backend="auto"`` takes the first importable of
-
-1. ``"cholmod"`` -- CHOLMOD through scikit-sparse (``sksparse.cholmod``; needs the system
-   SuiteSparse),
-2. ``"cholespy"`` -- CHOLMOD bundled in the ``cholespy`` binary wheels,
-3. ``"splu"`` -- SciPy's SuperLU (always available; symmetric mode, no pivoting).
-
-A matrix that is singular or indefinite (e.g. a floating, unsupported model) raises
-:class:`~sc_fem.errors.SolverError` instead of returning garbage.
+"""Repeated solves of sparse symmetric positive-definite systems: :class:`SystemSolver` (a sparse
+Cholesky factorization or CG + AMG, set up once and reused, lagging as the matrix changes) and
+:class:`MassSolver` (a consistent mass by CG). The factorizations themselves, with a choice of
+backend, are :mod:`sc_fem.fem.factorization`'s (re-exported here: :func:`factorize`,
+:class:`Factorization`, :data:`BACKENDS`, :func:`available_backends`, :func:`resolve_backend`).
 """
 
 from __future__ import annotations
 
-import functools
-import importlib.util
-import os
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
-from numpy.typing import ArrayLike
 
+from .._jit import blas_single_threaded
 from ..errors import InputError, SolverError
-
-BACKENDS: tuple[str, ...] = ("cholmod", "cholespy", "splu")
-"""Backends in the order ``"auto"`` tries them."""
-
-_PIVOT_RTOL = 1e-13
-"""A pivot below this times the largest one means a numerically singular matrix (splu)."""
-
-
-def available_backends() -> list[str]:
-    """The importable backends, in preference order (looked up once per process)."""
-    return list(_available_backends())
-
-
-@functools.lru_cache(maxsize=1)
-def _available_backends() -> tuple[str, ...]:
-    out = []
-    if importlib.util.find_spec("sksparse") is not None:
-        out.append("cholmod")
-    if importlib.util.find_spec("cholespy") is not None:
-        out.append("cholespy")
-    out.append("splu")
-    return tuple(out)
-
-
-def _singular_message(n: int, what: str) -> str:
-    return (f"the {n}x{n} system matrix is {what}: the model is probably not held in place "
-            "(no or too few fixed nodes: a floating part can move as a rigid body). "
-            "Fix nodes with fix=[...] / --fix 'x<...' or --fix-vertices FILE.")
-
-
-class Factorization:
-    """A factorization of a sparse SPD matrix ``A`` (n x n).
-
-    Parameters
-    ----------
-    A : scipy.sparse matrix, shape (n, n)
-        Symmetric positive definite (e.g. a stiffness matrix in N/m); only symmetry is assumed.
-    backend : {"auto", "cholmod", "cholespy", "splu"}
-        ``"auto"``: the first installed of :data:`BACKENDS`.
-    analysis : FillAnalysis, optional
-        CHOLMOD's symbolic analysis of ``A``'s pattern (:func:`sc_fem.fem.fill.analyze_fill`):
-        reused by the ``"cholmod"`` backend instead of ordering ``A`` again.
-
-    Raises
-    ------
-    SolverError
-        The matrix is singular, not positive definite or has non-finite entries.
-
-    Attributes
-    ----------
-    backend : str
-        ``"cholmod"``, ``"cholespy"`` or ``"splu"``.
-    shape : tuple
-        ``(n, n)``.
-    seconds : float
-        Wall time of the factorization.
-    """
-
-    def __init__(self, A: sp.spmatrix, backend: str = "auto", analysis: object | None = None) -> None:
-        if not sp.issparse(A):
-            raise InputError(f"A must be a scipy.sparse matrix, got {type(A).__name__}")
-        if A.ndim != 2 or A.shape[0] != A.shape[1] or A.shape[0] == 0:
-            raise InputError(f"A must be a non-empty square matrix, got shape {A.shape}")
-        if backend == "auto":
-            backend = _available_backends()[0]
-        if backend not in BACKENDS:
-            raise InputError(f"backend must be 'auto' or one of {list(BACKENDS)}, got {backend!r}")
-        if backend not in _available_backends():
-            raise InputError(f"backend {backend!r} is not installed (available: {available_backends()})")
-        self.backend = backend
-        self.shape = A.shape
-        n = A.shape[0]
-        A = sp.csr_matrix(A, dtype=np.float64)
-        if not np.all(np.isfinite(A.data)):
-            raise SolverError("the system matrix contains non-finite entries")
-        t0 = time.perf_counter()
-        if backend == "cholmod":
-            from sksparse.cholmod import CholmodNotPositiveDefiniteError, cholesky
-
-            try:
-                symbolic = getattr(analysis, "factor", None)
-                self._f = cholesky(A.tocsc()) if symbolic is None else symbolic.cholesky(A.tocsc())
-            except CholmodNotPositiveDefiniteError:
-                raise SolverError(_singular_message(n, "singular or not positive definite")) from None
-            d = self._f.D()
-            if np.any(d <= _PIVOT_RTOL * d.max()):
-                raise SolverError(_singular_message(n, "numerically singular"))
-        elif backend == "cholespy":
-            from cholespy import CholeskySolverD, MatrixType
-
-            # A symmetric: its CSR arrays are its CSC arrays
-            try:
-                self._f = CholeskySolverD(n, A.indptr.astype(np.int32), A.indices.astype(np.int32),
-                                          np.ascontiguousarray(A.data), MatrixType.CSC)
-            except ValueError as exc:
-                raise SolverError(_singular_message(n, f"singular or not positive definite ({exc})")) from None
-        else:
-            from scipy.sparse.linalg import splu
-
-            try:
-                self._f = splu(A.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                               options={"SymmetricMode": True})
-            except RuntimeError as exc:
-                raise SolverError(_singular_message(n, f"singular ({exc})")) from None
-            d = np.abs(self._f.U.diagonal())
-            if not np.all(np.isfinite(d)) or d.min() <= _PIVOT_RTOL * d.max():
-                raise SolverError(_singular_message(n, "numerically singular"))
-            # symmetric without pivoting: A = L D L^T, so a negative pivot means indefinite
-            if np.any(self._f.U.diagonal() < 0):
-                raise SolverError(_singular_message(n, "not positive definite"))
-        self.seconds = time.perf_counter() - t0
-
-    def solve(self, b: ArrayLike) -> np.ndarray:
-        """Solve ``A x = b``.
-
-        Parameters
-        ----------
-        b : array_like, shape (n,) or (n, k)
-            Right-hand side(s) (e.g. forces in N).
-
-        Returns
-        -------
-        ndarray, same shape as ``b``
-            The solution ``x`` (e.g. displacements in m).
-        """
-        b = np.asarray(b, dtype=np.float64)
-        n = self.shape[0]
-        if b.ndim not in (1, 2) or b.shape[0] != n:
-            raise InputError(f"b must have shape ({n},) or ({n}, k), got {b.shape}")
-        if self.backend == "cholespy":
-            b = np.ascontiguousarray(b)
-            x = np.zeros_like(b)
-            self._f.solve(b, x)
-        elif self.backend == "cholmod":
-            x = self._f(b)
-        else:
-            x = self._f.solve(b)
-        x = np.asarray(x).reshape(b.shape)
-        if not np.all(np.isfinite(x)):
-            raise SolverError(_singular_message(n, "singular (the solution is not finite)"))
-        return x
-
-    def __repr__(self) -> str:
-        return f"Factorization({self.shape[0]}x{self.shape[1]}, backend={self.backend!r})"
-
-
-def factorize(A: sp.spmatrix, backend: str | None = "auto", analysis: object | None = None) -> Factorization:
-    """Factorize a sparse symmetric positive-definite matrix.
-
-    Parameters
-    ----------
-    A : scipy.sparse matrix, shape (n, n)
-        Symmetric positive definite (only symmetry is assumed, not checked).
-    backend : {"auto", "cholmod", "cholespy", "splu"}
-        ``"auto"`` (default; overridable with the environment variable ``SC_FEM_SOLVER``) picks
-        the first installed of CHOLMOD (scikit-sparse), cholespy, SciPy ``splu``.
-    analysis : FillAnalysis, optional
-        The symbolic analysis of ``A`` (:func:`sc_fem.fem.fill.analyze_fill`), reused by CHOLMOD.
-
-    Returns
-    -------
-    Factorization
-        With ``.solve(b)`` and ``.backend``.
-
-    Raises
-    ------
-    SolverError
-        The matrix is singular or not positive definite.
-    """
-    return Factorization(A, resolve_backend(backend, keep_auto=True), analysis)
-
-
-def resolve_backend(backend: str | None = "auto", *, keep_auto: bool = False) -> str:
-    """The factorization backend that ``backend`` means: ``"auto"`` (or None) is the environment
-    variable ``SC_FEM_SOLVER`` if set, else the first installed of :data:`BACKENDS`.
-
-    Parameters
-    ----------
-    backend : str or None
-        ``"auto"``, None or a name of :data:`BACKENDS`.
-    keep_auto : bool
-        Return ``"auto"`` rather than the first installed backend when nothing names one.
-
-    Returns
-    -------
-    str
-    """
-    if backend in (None, "auto"):
-        backend = os.environ.get("SC_FEM_SOLVER", "auto") or "auto"
-    return backend if backend != "auto" or keep_auto else _available_backends()[0]
+from .bsr import NodeBlockProduct, node_blocks
+from .factorization import (BACKENDS, Factorization, available_backends, factorize,  # noqa: F401 (re-exported)
+                            resolve_backend)
+from .multigrid import LatticeAMG, pcg
 
 
 REFRESH_GROWTH = (1.5, 4)
@@ -226,14 +33,46 @@ ROUNDOFF_FLOOR = 100.0
 ``tol``: the round-off floor of ``S x = r`` (e.g. 3.2e-12 on the bunny r16's IPC step matrix)."""
 
 
-class SystemSolver:
-    """``A x = b`` for an SPD matrix that may change between solves (the effective matrices of implicit
-    time steps): a sparse Cholesky factorization (:class:`Factorization`), or conjugate gradients
-    preconditioned by a smoothed-aggregation V-cycle (:class:`sc_fem.fem.multigrid.LatticeAMG`).
+@dataclass(frozen=True)
+class Lag:
+    """How a direct :class:`SystemSolver` lags: after :meth:`~SystemSolver.update` it solves by CG
+    preconditioned with the factorization of an earlier matrix (to ``rtol``), factorizes the current
+    matrix at once when CG has not converged within ``maxiter`` iterations, and the next matrix when
+    a solve took more than ``refactor``.
 
-    After :meth:`update` the AMG hierarchy of the earlier matrix stays the preconditioner (SPD, so
-    CG still converges to the new matrix's solution) until a solve takes more iterations than
-    :data:`REFRESH_GROWTH` allows, or does not converge: then it is set up again on the current one.
+    Parameters
+    ----------
+    refactor : int
+        CG iterations of a lagged solve past which the next matrix is factorized.
+    maxiter : int
+        CG iterations after which a lagged solve factorizes its matrix at once.
+    rtol : float
+        Relative residual at which the lagged CG stops.
+    """
+
+    refactor: int
+    maxiter: int
+    rtol: float
+
+
+class SystemSolver:
+    """``A x = b`` for an SPD matrix that may change between solves (the stiffness of a static solve,
+    the effective matrices and contact Hessians of implicit time steps), set up once and reused: a
+    sparse Cholesky factorization (:class:`Factorization`), or conjugate gradients preconditioned by a
+    smoothed-aggregation V-cycle (:class:`sc_fem.fem.multigrid.LatticeAMG`); either built at the first
+    solve.
+
+    The lag policy after :meth:`update` (a new matrix; here and in :meth:`solve` only):
+
+    * CG + AMG: the hierarchy of an earlier matrix stays the preconditioner (SPD, so CG still
+      converges to the new matrix's solution) until a solve takes more iterations than
+      :data:`REFRESH_GROWTH` allows, or does not converge: then it is set up again on the current one;
+    * direct with a :class:`Lag`: CG preconditioned by an earlier factorization (or another solver,
+      :meth:`precondition_with`), the current matrix factorized when ``lag`` says;
+    * direct without one: the new matrix is factorized at its first solve.
+
+    A CG solve whose recurrence reached ``tol`` but whose recomputed residual stays above it is
+    accepted up to :data:`ROUNDOFF_FLOOR` times ``tol``.
 
     Parameters
     ----------
@@ -255,6 +94,12 @@ class SystemSolver:
     near_null, aggregates : ndarray, optional
         The AMG's near-null space (n, k) and finest aggregates (n // 3,) (the rigid modes and
         :func:`sc_fem.fem.multigrid.lattice_aggregates`); default the 3 translations and pyamg's aggregation.
+    amg_data : callable, optional
+        ``() -> (near_null, aggregates)`` instead, called at each AMG set-up only (never by a direct solve).
+    lag : Lag, optional
+        The direct solve's lag (default none: every new matrix is factorized).
+    system : str, optional
+        What the error of a CG failure calls the matrix (default ``"the n-DOF system"``; ``""``: nothing).
 
     Attributes
     ----------
@@ -262,66 +107,114 @@ class SystemSolver:
         ``"direct"`` or ``"cg-amg"`` (``"direct"`` after an automatic fallback).
     reason : str
         Why (and, after a fallback, the CG failure).
+    amg_data, lag : callable, Lag or None
+        As given (may be set before the first solve).
+    last : dict
+        The last CG solve's :func:`~sc_fem.fem.multigrid.pcg` info (``iterations``, ``residual``,
+        ``residuals``, ...), with ``levels`` (DOFs per level) and ``kernel`` for CG + AMG.
     stats : dict
         ``solves``, ``iterations`` (CG, all solves), ``setups`` (AMG), ``factorizations``,
-        ``setup_seconds``, ``fallback`` (the failed CG: residual, iterations; or None), ``floor``
-        (solves accepted at the round-off floor, :data:`ROUNDOFF_FLOOR`).
+        ``setup_seconds`` (AMG set-ups and factorizations), ``solve_seconds`` (CG and back-solves),
+        ``fallback`` (the failed CG: ``residual``, ``iterations``, its ``setup`` and ``solve`` seconds;
+        or None), ``floor`` (solves accepted at the round-off floor, :data:`ROUNDOFF_FLOOR`).
     """
 
     def __init__(self, A: sp.spmatrix, kind: str = "direct", *, reason: str = "", tol: float = 1e-8,
                  maxiter: int = 500, backend: str = "auto", fallback: str | None = None, hint: str = "",
-                 near_null: np.ndarray | None = None, aggregates: np.ndarray | None = None) -> None:
+                 near_null: np.ndarray | None = None, aggregates: np.ndarray | None = None,
+                 amg_data: Callable[[], tuple] | None = None, lag: Lag | None = None, system: str | None = None) -> None:
         if kind not in ("direct", "cg-amg"):
             raise InputError(f"kind must be 'direct' or 'cg-amg', got {kind!r}")
         self.A = sp.csr_matrix(A, dtype=np.float64)
-        n = self.A.shape[0]
         self.kind, self.reason, self.tol, self.maxiter, self.backend = kind, reason, tol, maxiter, backend
-        self.fallback, self.hint = fallback, hint
-        if near_null is None:
-            near_null = np.kron(np.ones((n // 3, 1)), np.eye(3)) if n % 3 == 0 else np.ones((n, 1))
-        self._null, self._agg = near_null, aggregates
-        self._fac = self._amg = self._product = None
-        self._lagged, self._fresh, self._last = False, None, 0
+        self.fallback, self.hint, self.lag = fallback, hint, lag
+        self.amg_data = amg_data if amg_data is not None else (lambda: (near_null, aggregates))
+        self._system = f"the {self.A.shape[0]:,}-DOF system" if system is None else system
+        self._fac = self._pre = self._amg = self._product = None     # factor of A, an older one (lag), hierarchy
+        self._due, self._lagged, self._fresh, self._last = False, False, None, 0
+        self.last: dict = {}
         self.stats = {"solves": 0, "iterations": 0, "setups": 0, "factorizations": 0, "setup_seconds": 0.0,
-                      "fallback": None, "floor": 0}
+                      "solve_seconds": 0.0, "fallback": None, "floor": 0}
+
+    @property
+    def backend_used(self) -> str:
+        """``"pyamg"`` (CG + AMG) or the factorization's backend (:func:`resolve_backend` before one)."""
+        if self.kind == "cg-amg":
+            return "pyamg"
+        return self._fac.backend if self._fac is not None else resolve_backend(self.backend)
 
     def update(self, A: sp.spmatrix) -> None:
-        """Solve with ``A`` (same shape) from now on; the direct solve refactorizes at the next solve, CG
-        keeps the current hierarchy as its preconditioner while it works."""
+        """Solve with ``A`` from now on, the preconditioner of the earlier matrix lagging (see the class).
+
+        Parameters
+        ----------
+        A : scipy.sparse matrix, shape (n, n)
+            The new SPD matrix, same shape (e.g. this step's effective matrix, kg).
+        """
         self.A = sp.csr_matrix(A, dtype=np.float64)
-        self._fac, self._product, self._lagged = None, None, self._amg is not None
+        if self.lag is None or self._due:        # no lag, or the last lagged solves were slow: factorize A
+            self._pre = None
+        elif self._fac is not None:              # the factor of the earlier matrix preconditions this one
+            self._pre = self._fac
+        self._fac, self._product, self._due, self._lagged = None, None, False, self._amg is not None
+
+    def precondition_with(self, other: "SystemSolver") -> None:
+        """Precondition the lagged solves of the current matrix with ``other`` (e.g. the factorization of its
+        part without contact) until one is factorized; nothing unless both are direct and this one lags.
+
+        Parameters
+        ----------
+        other : SystemSolver
+            A solver of a matrix near ``A``, same shape.
+        """
+        if self.kind == other.kind == "direct" and self.lag is not None and self._fac is None:
+            self._pre, self._due = other, False
 
     def _setup(self) -> None:
-        from .multigrid import LatticeAMG
-
         bs = 3 if self.A.shape[0] % 3 == 0 else 1
-        self._amg = LatticeAMG(self.A, self._null, aggregates=self._agg if bs == 3 else None, blocksize=bs)
+        near_null, aggregates = self.amg_data()
+        self._amg = LatticeAMG(self.A, near_null, aggregates=aggregates if bs == 3 else None, blocksize=bs)
         self._product, self._lagged, self._fresh = self._amg.levels[0], False, None
         self.stats["setups"] += 1
         self.stats["setup_seconds"] += self._amg.seconds
 
     def _direct(self, b: np.ndarray) -> np.ndarray:
         if self._fac is None:
-            self._fac = factorize(self.A, self.backend)
+            self._fac, self._pre, self._due = factorize(self.A, self.backend), None, False
             self.stats["factorizations"] += 1
             self.stats["setup_seconds"] += self._fac.seconds
-        return self._fac.solve(b)
+        t0 = time.perf_counter()
+        x = self._fac.solve(b)
+        self.stats["solve_seconds"] += time.perf_counter() - t0
+        return x
 
-    def _cg(self, b: np.ndarray, x0: np.ndarray | None, maxiter: int) -> tuple[np.ndarray, dict]:
-        from .._jit import blas_single_threaded
-        from .bsr import NodeBlockProduct, node_blocks
-        from .multigrid import pcg
+    def _pcg(self, A: Callable, M: Callable, b: np.ndarray, x0: np.ndarray | None, tol: float,
+             maxiter: int) -> tuple[np.ndarray, dict]:
+        t0 = time.perf_counter()
+        x, info = pcg(A, M, b, tol=tol, maxiter=maxiter, x0=x0)
+        self.stats["iterations"] += info["iterations"]
+        self.stats["solve_seconds"] += time.perf_counter() - t0
+        return x, info
 
+    def _cg(self, b: np.ndarray, x0: np.ndarray | None) -> tuple[np.ndarray, dict]:
         if self._product is None:
             self._product = (NodeBlockProduct(node_blocks(self.A), self._amg.kernel) if self.A.shape[0] % 3 == 0
                              else self.A.__matmul__)
         with blas_single_threaded():
-            x, info = pcg(self._product, self._amg.vcycle, b, tol=self.tol, maxiter=maxiter, x0=x0)
-        self.stats["iterations"] += info["iterations"]
+            x, info = self._pcg(self._product, self._amg.vcycle, b, x0, self.tol, self.maxiter)
         self._last = info["iterations"]
         if self._fresh is None and not self._lagged:
             self._fresh = info["iterations"]
+        info.update(levels=[lvl.A.shape[0] for lvl in self._amg.levels], kernel=self._amg.kernel)
         return x, info
+
+    def _accepted(self, info: dict, tol: float, maxiter: int) -> bool:
+        """Converged, or stopped at the round-off floor: the recurrence reached ``tol`` (3 times), the
+        recomputed residual cannot (:data:`ROUNDOFF_FLOOR`)."""
+        floor = (not info["converged"] and info["iterations"] < maxiter and not info["breakdown"]
+                 and info["residual"] <= ROUNDOFF_FLOOR * tol)
+        self.stats["floor"] += floor
+        return info["converged"] or floor
 
     def solve(self, b: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
         """``A^-1 b``.
@@ -331,13 +224,13 @@ class SystemSolver:
         b : ndarray, shape (n,)
             Right-hand side (e.g. a residual force, N).
         x0 : ndarray, shape (n,), optional
-            CG's start (e.g. the previous step's solution); ignored by the direct solve.
+            CG + AMG's start (e.g. the previous step's solution); ignored by the direct solve.
 
         Returns
         -------
         ndarray, shape (n,)
-            The solution (e.g. an acceleration increment, m/s^2), to ``options.tol`` relative
-            residual for CG.
+            The solution (e.g. an acceleration increment, m/s^2), to ``tol`` relative residual for
+            CG + AMG (to ``lag.rtol`` for a lagged direct solve).
 
         Raises
         ------
@@ -348,26 +241,36 @@ class SystemSolver:
         b = np.asarray(b, dtype=np.float64)
         self.stats["solves"] += 1
         if self.kind == "direct":
-            return self._direct(b)
+            lag = self.lag
+            if self._fac is None and lag is not None and self._pre is not None:    # CG on an older factor
+                x, self.last = self._pcg(self.A.__matmul__, self._pre.solve, b, None, lag.rtol, lag.maxiter)
+                if self._accepted(self.last, lag.rtol, lag.maxiter):
+                    self._due |= self.last["iterations"] > lag.refactor
+                    return x
+            return self._direct(b)                       # (a lagged CG that failed: factorize at once)
         grow, extra = REFRESH_GROWTH
         if self._amg is None or (self._lagged and self._fresh is not None and self._last > grow * self._fresh + extra):
             self._setup()
-        x, info = self._cg(b, x0, self.maxiter)
+        x, info = self._cg(b, x0)
         if not info["converged"] and self._lagged:            # the old hierarchy no longer does: a new one
             self._setup()
-            x, more = self._cg(b, x, self.maxiter)
-            info = {**more, "iterations": info["iterations"] + more["iterations"]}
-        if info["converged"]:
+            x, more = self._cg(b, x)
+            info = {**more, "iterations": info["iterations"] + more["iterations"],
+                    "residuals": info["residuals"] + more["residuals"]}
+        self.last = info
+        if self._accepted(info, self.tol, self.maxiter):
             return x
-        if info["iterations"] < self.maxiter and not info["breakdown"] and info["residual"] <= ROUNDOFF_FLOOR * self.tol:
-            self.stats["floor"] += 1     # the recurrence reached tol (3 times), the true residual cannot: round-off
-            return x
-        why = " (a non-positive curvature: the matrix is not positive definite)" if info["breakdown"] else ""
-        msg = (f"CG + AMG did not converge on the {self.A.shape[0]:,}-DOF system: relative residual "
-               f"{info['residual']:.3g} > tol {self.tol:g} after {info['iterations']} iterations{why}")
+        why = (" (a non-positive curvature: the matrix is not positive definite)" if info["breakdown"] else
+               " (too slow: members one or two cubes thick?)" if self.fallback and info["iterations"] >= self.maxiter
+               else "")
+        on = f" on {self._system}" if self._system else ""
+        msg = (f"CG + AMG did not converge{on}: relative residual {info['residual']:.3g} > tol {self.tol:g} "
+               f"after {info['iterations']} iterations{why}")
         if self.fallback is None:
             raise SolverError(f"{msg}; {self.hint}" if self.hint else msg)
-        self.stats["fallback"] = {"residual": info["residual"], "iterations": info["iterations"]}
+        st = self.stats
+        st["fallback"] = {"residual": info["residual"], "iterations": info["iterations"],
+                          "setup": st["setup_seconds"], "solve": st["solve_seconds"]}
         self.kind, self.reason = "direct", f"{self.reason}; {msg}: {self.fallback}"
         self._amg = self._product = None
         return self._direct(b)
@@ -423,8 +326,6 @@ class MassSolver:
         ndarray, shape (n,)
             Acceleration, m/s^2 (to :data:`MASS_CG` ``tol`` relative residual, or exact by the fallback).
         """
-        from .multigrid import pcg
-
         b = np.asarray(b, dtype=np.float64)
         self.stats["solves"] += 1
         if self._direct is None:

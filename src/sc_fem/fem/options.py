@@ -17,10 +17,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from .._jit import available
+from .._memory import available_memory
+from .._validate import positive_int, positive_scalar
 from ..errors import InputError, SolverError
 
 # fill_analysis and its size limit are re-exported: the automatic choice's names stay importable from here
-from .fill import FILL_ANALYSIS_MAX_DOFS, fill_analysis  # noqa: F401
+from .fill import (FILL_ANALYSIS_MAX_DOFS, LOBPCG_FILL_MODEL, fill_analysis, lobpcg_factor,  # noqa: F401
+                   shift_invert_seconds)
+from .linsolve import BACKENDS, SystemSolver
 
 if TYPE_CHECKING:
     from .fill import FillAnalysis
@@ -69,15 +74,11 @@ class EigenOptions:
     max_memory: float | None = None
 
     def __post_init__(self) -> None:
-        from .linsolve import BACKENDS
-
         if self.solver not in METHODS:
             raise InputError(f"eigensolver must be one of {list(METHODS)}, got {self.solver!r}")
         if self.backend not in ("auto", *BACKENDS):
             raise InputError(f"backend must be one of {['auto', *BACKENDS]}, got {self.backend!r}")
         if self.max_memory is not None:
-            from .._validate import positive_scalar
-
             object.__setattr__(self, "max_memory", positive_scalar(self.max_memory, "max_memory"))
 
     @classmethod
@@ -151,10 +152,6 @@ def predicted_seconds(method: str, n: int, k: int, analysis: FillAnalysis | None
     float
         Seconds, set-up included.
     """
-    from .._jit import available
-
-    from .fill import LOBPCG_FILL_MODEL, lobpcg_factor, shift_invert_seconds
-
     if method == "shift-invert" and analysis is not None:
         return shift_invert_seconds(analysis, k)
     c, p = SPEED_MODEL["lobpcg-numba" if method == "lobpcg" and available() else method]
@@ -168,8 +165,6 @@ def predicted_seconds(method: str, n: int, k: int, analysis: FillAnalysis | None
 
 def memory_budget(max_memory: float | None = None) -> float:
     """Bytes the eigensolver may use: ``max_memory``, or half the available memory."""
-    from .._memory import available_memory
-
     return 0.5 * available_memory() if max_memory is None else float(max_memory)
 
 
@@ -267,9 +262,6 @@ class StaticOptions:
     max_memory: float | None = None
 
     def __post_init__(self) -> None:
-        from .._validate import positive_int, positive_scalar
-        from .linsolve import BACKENDS
-
         if self.solver not in STATIC_SOLVERS:
             raise InputError(f"static solver must be one of {list(STATIC_SOLVERS)}, got {self.solver!r}")
         if self.backend not in ("auto", *BACKENDS):
@@ -401,8 +393,6 @@ class DynamicOptions(StaticOptions):
         -------
         SystemSolver
         """
-        from .linsolve import SystemSolver
-
         n, nnz = A.shape[0], A.nnz
         kind, reason = choose_dynamic_solver(n, nnz, self.solver, max_memory=self.max_memory)
         need, budget = factor_memory_estimate(n, nnz), memory_budget(self.max_memory)

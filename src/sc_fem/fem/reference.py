@@ -18,8 +18,10 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import InputError, MeshError, ScFemError
+from ..geometry.inside import mesh_parts
 from ..geometry.mesh import load_mesh
 from ..units import GRAVITY
+from .linsolve import factorize
 
 
 
@@ -101,8 +103,6 @@ def closed_manifold(mesh: Any):
     """
     import trimesh
 
-    from ..geometry.inside import mesh_parts
-
     mesh = load_mesh(mesh)
     v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     if len(f) == 0:
@@ -176,8 +176,6 @@ def uniform_field(basis, c: np.ndarray) -> np.ndarray:
 def _free_free(K, M, n_modes: int, shift: float) -> np.ndarray:
     from scipy.sparse.linalg import LinearOperator, eigsh
 
-    from .linsolve import factorize
-
     A = (K + shift * M).tocsc()
     fac = factorize(A)
     op = LinearOperator(A.shape, matvec=fac.solve, dtype=float)
@@ -212,8 +210,6 @@ def solve_reference(mesh: Any, *, youngs: float, poisson: float, density: float,
         as the model it is compared with (a y-up mesh sags along -y).
     """
     from skfem import Basis, BilinearForm, ElementTetP2, ElementVector, MeshTet, asm
-
-    from .linsolve import factorize
     from skfem.helpers import dot
     from skfem.models.elasticity import lame_parameters, linear_elasticity
 

@@ -34,9 +34,11 @@ from .highorder import DEGREES, HighOrderAssembler, HighOrderCubes
 from ..errors import BoundaryConditionError, InputError, SolverError
 from ..lattice.cubes import CubeModel
 from ..scene import Scene
-from .linsolve import factorize
+from . import options as _options
+from .linsolve import SystemSolver
 from .multigrid import lattice_aggregates
 from .options import StaticOptions, choose_static_solver
+from .rigid import rigid_body_modes
 
 
 @dataclass(frozen=True, eq=False)
@@ -238,21 +240,20 @@ def solve_static(scene: Scene, *, element: str = DEFAULT_ELEMENT, forces: ArrayL
             b = b + (W.T @ pf).reshape(-1)[asm.free_dofs]
     else:
         b = asm.restrict(f)
-    how, reason = choose_static_solver(K.shape[0], K.nnz, opts.solver, lattice=not higher,
-                                       max_memory=opts.max_memory)
-    info: dict = {"reason": reason}
-    x = None
-    if how == "cg-amg":
-        nodes = asm.nodes_m if higher else model.nodes_m
-        agg = None if higher else lattice_aggregates(model, labels, asm.free_dofs)
-        x, backend_used = _solve_cg_amg(K, b, nodes, asm.free_dofs, agg, opts, t, info)
-    if x is None:
-        fac = factorize(K, opts.backend)
-        t["factorize"] = fac.seconds
-        t0 = time.perf_counter()
-        x = fac.solve(b)
-        t["solve"] = time.perf_counter() - t0
-        how, backend_used = "direct", fac.backend
+    amg_data = ((lambda: (rigid_body_modes(asm.nodes_m, asm.free_dofs), None)) if higher else
+                (lambda: lattice_amg_data(model, asm.free_dofs, labels)))    # built only if CG + AMG is chosen
+    linear = _system_solver(K, opts, higher, amg_data)
+    x = linear.solve(b)
+    how, st, info = linear.kind, linear.stats, {"reason": linear.reason}
+    if linear.last:                                    # CG + AMG ran (and maybe failed)
+        cg = linear.last
+        info.update(iterations=cg["iterations"], tol=opts.tol, levels=cg["levels"], kernel=cg["kernel"],
+                    residuals=cg["residuals"])
+    failed = st["fallback"] or {"setup": 0.0, "solve": 0.0}
+    if st["fallback"]:
+        info["cg_failed"] = st["fallback"]
+    t["factorize" if how == "direct" else "setup"] = st["setup_seconds"] - failed["setup"]
+    t["solve"] = st["solve_seconds"] - failed["solve"]
     res = float(np.linalg.norm(K @ x - b) / max(np.linalg.norm(b), 1e-300))
     limit = max(1e-6, 10.0 * opts.tol) if how == "cg-amg" else 1e-6
     if not res < limit:
@@ -263,46 +264,46 @@ def solve_static(scene: Scene, *, element: str = DEFAULT_ELEMENT, forces: ArrayL
         vu = None if W is None else asm.vertex_field(x, W)
     else:
         vu = None if W is None else np.asarray(W @ u)
-    return StaticResult(u, vu, f, fixed, len(floating), element, backend_used, res, t,
+    return StaticResult(u, vu, f, fixed, len(floating), element, linear.backend_used, res, t,
                         compliance=float(b @ x), solver=how, info=info)
 
 
-def _solve_cg_amg(K: sp.csr_matrix, b: np.ndarray, nodes: np.ndarray, free_dofs: np.ndarray,
-                  aggregates: np.ndarray | None, opts: StaticOptions, t: dict, info: dict
-                  ) -> tuple[np.ndarray | None, str]:
-    """CG + AMG for ``K x = b`` (N/m, N): ``(x, "pyamg")``, or ``(None, "")`` when CG did not
-    converge and ``opts.solver == "auto"`` may fall back to the direct solve (the times and the
-    failure go into ``t`` and ``info``); an explicit ``"cg-amg"`` raises :class:`SolverError`."""
-    from .multigrid import LatticeAMG
-    from .options import AUTO_CG_ITERATIONS, factor_memory_estimate, memory_budget
-    from .rigid import rigid_body_modes
-
-    bs = 3 if K.shape[0] % 3 == 0 else 1
-    amg = LatticeAMG(K, rigid_body_modes(nodes, free_dofs), aggregates=aggregates, blocksize=bs)
+def _system_solver(K: sp.csr_matrix, opts: StaticOptions, higher: bool, amg_data) -> SystemSolver:
+    """The :class:`~sc_fem.fem.linsolve.SystemSolver` of ``K u = f`` (N/m) that ``opts`` choose
+    (:func:`~sc_fem.fem.options.choose_static_solver`): ``"auto"`` gives CG
+    :data:`~sc_fem.fem.options.AUTO_CG_ITERATIONS` iterations, then solves directly when the factorization
+    fits in memory (else CG goes on to ``maxiter``); an explicit ``"cg-amg"`` that fails raises.
+    ``amg_data``: ``() -> (near_null, aggregates)``, called only if the AMG is set up."""
+    how, reason = choose_static_solver(K.shape[0], K.nnz, opts.solver, lattice=not higher,
+                                       max_memory=opts.max_memory)
     auto = opts.solver == "auto"
-    need, budget = factor_memory_estimate(K.shape[0], K.nnz), memory_budget(opts.max_memory)
-    fits = need <= budget
-    t0 = time.perf_counter()
-    x, cg = amg.solve(b, tol=opts.tol, maxiter=min(opts.maxiter, AUTO_CG_ITERATIONS) if auto else opts.maxiter)
-    if auto and not fits and not cg["converged"] and cg["iterations"] < opts.maxiter and not cg["breakdown"]:
-        x, more = amg.solve(b, tol=opts.tol, maxiter=opts.maxiter - cg["iterations"], x0=x)   # no way out
-        more.update(iterations=cg["iterations"] + more["iterations"], residuals=cg["residuals"] + more["residuals"])
-        cg = more
-    t.update(setup=amg.seconds, solve=time.perf_counter() - t0)
-    info.update(iterations=cg["iterations"], tol=opts.tol, levels=[lvl.A.shape[0] for lvl in amg.levels],
-                kernel=amg.kernel, residuals=cg["residuals"])
-    if cg["converged"]:
-        return x, "pyamg"
-    why = " (stopped at a non-positive curvature: the matrix is not positive definite)" if cg["breakdown"] \
-        else f" (maxiter={opts.maxiter})" if cg["iterations"] >= opts.maxiter else \
-        " (too slow: members one or two cubes thick?)"
-    msg = (f"CG + AMG did not converge: relative residual {cg['residual']:.3g} > tol {opts.tol:g} after "
-           f"{cg['iterations']} iterations{why}")
-    if not (auto and fits):
-        hint = ("use solver='direct' (or 'auto' to fall back to it)" if not auto else
-                f"the direct solve would need ~{need / 2**30:.1f} GiB > budget {budget / 2**30:.1f} GiB")
-        raise SolverError(f"{msg}; {hint}, or raise maxiter / tol (StaticOptions)")
-    info["cg_failed"] = {"residual": cg["residual"], "iterations": cg["iterations"],
-                         "setup": t.pop("setup"), "solve": t.pop("solve")}
-    info["reason"] += f"; {msg}: solved directly instead"
-    return None, ""
+    need, budget = _options.factor_memory_estimate(K.shape[0], K.nnz), _options.memory_budget(opts.max_memory)
+    fallback = "solved directly instead" if auto and need <= budget else None
+    hint = ("use solver='direct' (or 'auto' to fall back to it)" if not auto else
+            f"the direct solve would need ~{need / 2**30:.1f} GiB > budget {budget / 2**30:.1f} GiB")
+    return SystemSolver(K, how, reason=reason, tol=opts.tol, backend=opts.backend, fallback=fallback,
+                        hint=f"{hint}, or raise maxiter / tol (StaticOptions)", system="", amg_data=amg_data,
+                        maxiter=min(opts.maxiter, _options.AUTO_CG_ITERATIONS) if fallback else opts.maxiter)
+
+
+def lattice_amg_data(model: CubeModel, free_dofs: np.ndarray, labels: np.ndarray | None = None
+                     ) -> tuple[np.ndarray, np.ndarray | None]:
+    """What the AMG of a trilinear lattice matrix on ``free_dofs`` is built from.
+
+    Parameters
+    ----------
+    model : CubeModel
+    free_dofs : ndarray of int, shape (n,)
+        The free DOFs (node-major) the matrix acts on.
+    labels : ndarray of int, shape (m,), optional
+        Part of every node (:func:`node_parts`; computed when omitted).
+
+    Returns
+    -------
+    near_null : ndarray, shape (n, 6)
+        The rigid-body modes (:func:`~sc_fem.fem.rigid.rigid_body_modes`, m).
+    aggregates : ndarray of int, shape (n // 3,) or None
+        The finest aggregates (:func:`~sc_fem.fem.multigrid.lattice_aggregates`).
+    """
+    labels = node_parts(model) if labels is None else labels
+    return rigid_body_modes(model.nodes_m, free_dofs), lattice_aggregates(model, labels, free_dofs)

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..errors import MeshError, MeshFileError
+from . import models
 
 if TYPE_CHECKING:
     import trimesh
@@ -60,8 +61,6 @@ def load_mesh(source: Any, *, name: str | None = None) -> trimesh.Trimesh:
     if isinstance(source, (str, os.PathLike)):
         s = str(source)
         if s.startswith(BUILTIN_PREFIX):
-            from . import models
-
             mesh = models.load(s[len(BUILTIN_PREFIX):])
             vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
             meta = {"source": s, "sha256": _sha256_arrays(vertices, faces)}

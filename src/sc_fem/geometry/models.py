@@ -27,7 +27,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import BoundaryConditionError, InputError
 from ..material import Material
 
 
@@ -205,8 +205,6 @@ def expand_fix(specs, source: str) -> list:
     BoundaryConditionError
         ``"default"`` used for a model that is not built in.
     """
-    from ..errors import BoundaryConditionError
-
     out: list = []
     for s in specs:
         if isinstance(s, str) and s.strip().lower() == "default":

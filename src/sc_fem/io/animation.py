@@ -45,7 +45,11 @@ from numpy.typing import ArrayLike
 from .._atomic import save_npz_atomic
 from ._npz import read_versioned_npz
 from .._validate import as_float_array, positive_scalar
+from ..dynamics.contact import obstacles_from
 from ..errors import InputError, FileFormatError
+from ..units import up_axis
+from .paraview import write_xdmf_series
+from .render import render_animation
 
 ANIMATION_FORMAT_VERSION = 2
 ANIMATION_READS = (1, 2)
@@ -383,8 +387,6 @@ def write_xdmf(path: str | Path, rest: np.ndarray, faces: np.ndarray, times: Arr
     than VTK's XML reader takes); with ``model`` and ``node_displacements`` (T, m, 3) in metres,
     the cube lattice too, in ``NAME_lattice.xdmf`` (:func:`sc_fem.io.paraview.write_xdmf_series`).
     All files appear together or not at all. Returns the surface series' path."""
-    from .paraview import write_xdmf_series
-
     return write_xdmf_series(path, rest, faces, times, positions, model=model,
                              node_displacements=node_displacements, element=element)[0]
 
@@ -414,11 +416,6 @@ def write_animation(path, scene, rec, *, exaggerate: float = 1.0, fps: float = 5
         lattice = {"model": scene.model, "node_displacements": rec.u,
                    "element": rec.info.get("element")} if keeps_lattice(rec) else {}
         return write_xdmf(path, rest, faces, rec.times, rec.points, **lattice)
-    from .render import render_animation
-
-    from ..dynamics.contact import obstacles_from
-    from ..units import up_axis
-
     exaggerate = positive_scalar(exaggerate, "exaggerate")
     info = rec.info
     up = str(info.get("up", "z"))

@@ -33,7 +33,11 @@ from typing import Any, Iterable
 
 from .._atomic import atomic_path
 from .._progress import stage_bar
-from ..errors import InputError
+from ..errors import InputError, ScFemError
+from ..modes.auto import modal_converged
+from ..modes.modal import modal
+from ..scene import Scene
+from .modes import save_modes
 
 SUMMARY_FIELDS = ("mesh", "status", "output", "seconds", "cubes", "dofs", "n_modes", "f_min_hz", "f_max_hz",
                   "solver", "error")
@@ -218,10 +222,6 @@ def mesh_modes(mesh: Any, *, voxel: Any = None, auto: Any = None, fix: Any = Non
     ModalBasis
         The modes (Hz, m kg^-1/2) baked onto the mesh.
     """
-    from ..modes.auto import modal_converged
-    from ..modes.modal import modal
-    from ..scene import Scene
-
     if auto is not None:
         return modal_converged(mesh, auto, voxel=voxel, fix=fix, fix_vertices=fix_vertices, **request)
     return modal(Scene.from_mesh(mesh, voxel, fix=fix, fix_vertices=fix_vertices), **request)
@@ -243,8 +243,6 @@ def precompute_one(mesh: str, output: str, options: dict) -> dict:
     row: dict[str, Any] = {k: "" for k in SUMMARY_FIELDS}
     row.update(mesh=mesh, output=output)
     try:
-        from .modes import save_modes
-
         basis = mesh_modes(mesh, **dict(options))
         save_modes(basis, output)
         f = basis.frequencies[~basis.rigid]
@@ -252,8 +250,6 @@ def precompute_one(mesh: str, output: str, options: dict) -> dict:
                    f_min_hz=f"{f.min():.6g}" if len(f) else "", f_max_hz=f"{f.max():.6g}" if len(f) else "",
                    solver=f"{basis.eigen.get('method', '')}/{basis.eigen.get('backend', '')}")
     except Exception as exc:  # noqa: BLE001 - one bad mesh must fail alone, with its message
-        from ..errors import ScFemError
-
         msg = f"{type(exc).__name__}: {exc}"
         if not isinstance(exc, ScFemError):
             msg += " | " + traceback.format_exc(limit=-2).strip().replace("\n", " / ")[-400:]

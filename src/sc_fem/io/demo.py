@@ -13,8 +13,25 @@ from pathlib import Path
 import numpy as np
 
 from .._log import logger, say
+from ..dynamics.job import run_simulation
+from ..dynamics.rope_scene import rope_scene
 from ..errors import RenderError, ScFemError
+from ..geometry import models
+from ..geometry.mesh import load_mesh
+from ..lattice.voxelize import voxelize
+from ..modes.modal import modal
+from ..modes.player import ModalPlayer
+from ..scene import Scene
+from ..units import gravity_down
+from .animation import save_animation, write_animation
+from .gltf import export_gltf
+from .model import save_model
+from .modes import load_modes, save_modes
+from .reconstruction import reconstruct_to_file
+from .render import modes_sheet, plot_cubes_over_mesh, render_animation
 from .report import JobResult
+from .viewer import write_viewer
+from .voxelize import model_summary
 
 
 def demo_voxels(out: str | Path, resolution: int = 40, *, verbose: bool = True) -> list[Path]:
@@ -34,12 +51,6 @@ def demo_voxels(out: str | Path, resolution: int = 40, *, verbose: bool = True) 
     list of Path
         ``NAME_cubes_sample.png``, ``NAME_cubes_exact.png`` and ``NAME_cubes.vtu`` per model.
     """
-    from ..geometry.mesh import load_mesh
-    from ..lattice.voxelize import voxelize
-    from .model import save_model
-    from .render import plot_cubes_over_mesh
-    from .voxelize import model_summary
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     written = []
@@ -73,13 +84,6 @@ def demo_modal(out: str | Path, *, resolution: int = 24, n_modes: int = 8) -> li
         ``chair.modes.npz``, ``chair_modes_sheet.png`` and ``chair_play.gif`` (an impulse on the
         top of the backrest, 2 s at 15 fps).
     """
-    from ..geometry import models
-    from ..modes.modal import modal
-    from ..modes.player import ModalPlayer
-    from ..scene import Scene
-    from .modes import save_modes
-    from .render import modes_sheet, render_animation
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     basis = modal(Scene.from_mesh("builtin:chair", resolution=resolution, fix=list(models.fix_specs("chair"))),
@@ -114,10 +118,6 @@ def demo_engine(out: str | Path) -> list[Path]:
     list of Path
         ``chair.glb`` and, when the viewer bundle is built, ``chair.html``.
     """
-    from .gltf import export_gltf
-    from .modes import load_modes
-    from .viewer import write_viewer
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     basis = load_modes(out / "chair.modes.npz")
@@ -146,11 +146,6 @@ def demo_dynamics(out: str | Path, *, resolution: int = 16) -> list[Path]:
         ``bridge_gust.npz`` (true displacements) and, when rendering works, ``bridge_gust.gif``
         (displacements x2000, 10x slow motion).
     """
-    from ..dynamics.job import run_simulation
-    from ..scene import Scene
-    from ..units import gravity_down
-    from .animation import write_animation
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     scene = Scene.from_mesh("builtin:bridge", resolution=resolution, fix="default")
@@ -180,11 +175,6 @@ def demo_rope(out: str | Path, *, verbose: bool = True) -> list[Path]:
     list of Path
         ``rope_xpbd.npz``, ``rope_xpbd.gif``, ``rope_reconstruction.npz`` and ``rope_reconstruction.md``.
     """
-    from ..dynamics.rope_scene import rope_scene
-    from .animation import save_animation
-    from .reconstruction import reconstruct_to_file
-    from .render import render_animation
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     scene = rope_scene(n_frames=11, fps=20.0, substeps=180)       # substep 1/3600 s

@@ -12,7 +12,13 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from ..errors import InputError, ScFemWarning
+from ..modes.basis import ModalBasis
+from .animation import Animation, resample_animation
+from .gltf import DEFAULT_AMPLITUDE, MAX_ANIMATION_TARGETS, _load, alias_warning, export_gltf, moving_modes
+from .modes import save_modes_vtu
+from .paraview import save_modes_vtkhdf
 from .report import JobResult
+from .usd import _pxr, export_usd
 
 EXPORT_FORMATS = {".glb": "gltf", ".gltf": "gltf", ".usd": "usd", ".usda": "usd", ".usdc": "usd", ".vtu": "vtu",
                   ".vtkhdf": "vtkhdf"}
@@ -32,8 +38,6 @@ def _animation_at(anim: Any, fps: float | None, duration: float | None, max_fram
     """``anim`` at ``fps`` (default its stored rate) over ``duration`` seconds (default all of it),
     :func:`sc_fem.io.animation.resample_animation` when that differs from what is stored; at most
     ``max_frames`` frames, or an InputError saying which ``--fps`` / ``--duration`` fit."""
-    from .animation import resample_animation
-
     stored = anim.frame_rate
     same = fps is None or stored is None or abs(float(fps) - stored) <= 1e-9 * stored
     if not (same and duration is None):
@@ -107,9 +111,6 @@ def export_to_file(source: Any, output: str | Path, *, amplitude: float | None =
     ScFemWarning
         A baked playback moves modes above ``fps / 2`` (they alias; the rule and words of ``sc-fem play``).
     """
-    from .animation import Animation
-    from .gltf import DEFAULT_AMPLITUDE, MAX_ANIMATION_TARGETS, _load, alias_warning, moving_modes
-
     writer = EXPORT_FORMATS.get(Path(output).suffix.lower())
     if writer is None:
         raise InputError(f"cannot export to {Path(output).name!r}: use {', '.join(EXPORT_FORMATS)}")
@@ -117,16 +118,10 @@ def export_to_file(source: Any, output: str | Path, *, amplitude: float | None =
         raise InputError(f"--quantize applies to glTF only (.glb, .gltf: KHR_mesh_quantization), not to "
                          f"{Path(output).suffix.lower()}")
     if writer == "usd":
-        from .usd import _pxr
-
         _pxr()                                     # a missing usd-core is said before any work
     data = _load(source)
     amplitude = DEFAULT_AMPLITUDE if amplitude is None else amplitude
     if writer in ("vtu", "vtkhdf"):
-        from ..modes.basis import ModalBasis
-        from .modes import save_modes_vtu
-        from .paraview import save_modes_vtkhdf
-
         if not isinstance(data, ModalBasis):
             raise InputError(f"{source}: only a mode file can be written as .{writer} (an animation: "
                              "sc-fem simulate -o run.xdmf)")
@@ -136,10 +131,7 @@ def export_to_file(source: Any, output: str | Path, *, amplitude: float | None =
         text = (f"wrote {path} ({path.stat().st_size / 1024:.0f} KiB): point arrays mode_K, field data "
                 "frequency_Hz, damping_ratio")
         return JobResult(written=[path], result=data, text=text)
-    if writer == "usd":
-        from .usd import export_usd as write
-    else:
-        from .gltf import export_gltf as write
+    write = export_usd if writer == "usd" else export_gltf
     if isinstance(data, Animation):
         if impulse is not None or mode is not None:
             raise InputError("--impulse / --mode bake a playback of a mode file; an animation is exported with "

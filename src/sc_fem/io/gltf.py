@@ -79,10 +79,19 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from .._atomic import atomic_path
+from .._validate import positive_scalar
+from ..errors import InputError, MeshFileError
+from ..geometry.mesh import load_mesh
+from ..modes.basis import ModalBasis
+from ..modes.player import ModalPlayer
 from ..units import up_axis
+from ._npz import npz_kind
+from .animation import ANIMATION_KIND, Animation, load_animation
 from .asset import _document
+from .modes import load_modes
 from .normals import _Normals, _unit
+from .quantize import quantize_document
 
 MAX_ANIMATION_TARGETS = 256
 """Frames of a vertex animation exported as morph targets (one target per frame)."""
@@ -108,11 +117,6 @@ def _load(source, what: str = "mode or animation file"):
     FileFormatError
         A missing, truncated, non-zip or corrupted file (named ``what``), or a foreign one.
     """
-    from ..modes.modal import ModalBasis
-    from ._npz import npz_kind
-    from .animation import ANIMATION_KIND, Animation, load_animation
-    from .modes import load_modes
-
     if isinstance(source, (ModalBasis, Animation)):
         return source
     path = Path(source)
@@ -127,9 +131,6 @@ def _surface(mesh, rest: np.ndarray):
     if mesh is None:
         return None, None
     if not isinstance(mesh, trimesh.Trimesh):
-        from ..errors import MeshFileError
-        from ..geometry.mesh import load_mesh
-
         path = Path(mesh)
         if str(mesh).startswith("builtin:"):
             load_mesh(str(mesh))                  # a valid name; built-ins carry no UVs
@@ -240,8 +241,6 @@ def gltf_document(source, *, amplitude: float = DEFAULT_AMPLITUDE, impulse=None,
     doc = _gltf_document(source, amplitude=amplitude, impulse=impulse, mode=mode, duration=duration, fps=fps,
                          up=up, mesh=mesh, layout=layout)
     if quantize:
-        from .quantize import quantize_document
-
         quantize_document(doc, per_target=layout == "viewer")
     return doc
 
@@ -249,10 +248,6 @@ def gltf_document(source, *, amplitude: float = DEFAULT_AMPLITUDE, impulse=None,
 def _gltf_document(source, *, amplitude: float, impulse, mode: int | None, duration: float, fps: float, up: str,
                    mesh, layout: str):
     """The float32 document of :func:`gltf_document`."""
-    from .._validate import positive_scalar
-    from ..modes.player import ModalPlayer
-    from .animation import Animation
-
     if layout not in LAYOUTS:
         raise InputError(f"layout must be one of {LAYOUTS}, got {layout!r}")
     engine = layout == "engine"
@@ -384,8 +379,6 @@ def export_gltf(source, path, *, amplitude: float = DEFAULT_AMPLITUDE, impulse=N
     -------
     Path
     """
-    from .._atomic import atomic_path
-
     path = Path(path)
     kind = path.suffix.lower()
     if kind not in (".glb", ".gltf"):

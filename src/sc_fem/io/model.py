@@ -11,6 +11,7 @@ from .._atomic import atomic_path, save_npz_atomic
 from ._npz import read_versioned_npz
 from ..errors import InputError
 from ..lattice.cubes import CubeModel
+from .render import _VTK_HEX_ORDER
 
 MODEL_FORMAT_VERSION = 1
 MODEL_KIND = "sc_fem.cubemodel"
@@ -47,8 +48,6 @@ def save_model(model: CubeModel, path: str | Path) -> Path:
             info_json=np.str_(json.dumps(model.info, default=str)))
     if ext == ".vtu":
         import meshio
-
-        from .render import _VTK_HEX_ORDER
 
         m = meshio.Mesh(model.nodes, [("hexahedron", model.hexes[:, _VTK_HEX_ORDER])],
                         cell_data={"mass_kg": [model.mass], "youngs_Pa": [model.youngs],

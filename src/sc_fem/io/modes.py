@@ -43,10 +43,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .._atomic import save_npz_atomic
+from .._atomic import atomic_path, save_npz_atomic
 from ._npz import read_versioned_npz
 from ..errors import InputError, FileFormatError
+from ..lattice.cubes import CubeModel
 from ..modes.basis import ModalBasis
+from .paraview import modes_content
 
 MODES_FORMAT_VERSION = 1
 MODES_KIND = "sc_fem.modes"
@@ -120,9 +122,6 @@ def save_modes_vtu(basis: ModalBasis, path: str | Path) -> Path:
     per model unit); :func:`sc_fem.io.paraview.save_modes_vtkhdf` writes the same as VTKHDF.
     Returns the path."""
     import pyvista as pv
-
-    from .._atomic import atomic_path
-    from .paraview import modes_content
 
     path = Path(path)
     if path.suffix.lower() != ".vtu":
@@ -220,8 +219,6 @@ def load_modes(path: str | Path) -> ModalBasis:
         raise FileFormatError(f"{path}: corrupted metadata ({exc})") from None
     lattice = node_modes = None
     if "lattice_node_modes" in data:
-        from ..lattice.cubes import CubeModel
-
         try:
             lattice = CubeModel.from_cells(
                 data["lattice_cells"], origin=data["lattice_origin"], pitch=float(data["lattice_pitch"]),

@@ -30,7 +30,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..errors import InputError
+from .._atomic import atomic_path
+from ..errors import InputError, OutputError
+from ..fem.elements import DEFAULT_ELEMENT, cube_stiffness_chunks
+from ..modes.basis import ModalBasis
+from .render import _VTK_HEX_ORDER
 
 VTKHDF_VERSION = (1, 0)
 """The VTKHDF version written by :func:`save_modes_vtkhdf`."""
@@ -69,8 +73,6 @@ def modes_content(basis: Any) -> tuple[np.ndarray, np.ndarray, int, dict, dict]:
         ``frequency_Hz`` (k,) Hz, ``damping_ratio`` (k,), ``rigid`` (k,) int8, ``scale`` (1,) m per
         model unit.
     """
-    from ..modes.basis import ModalBasis
-
     if not isinstance(basis, ModalBasis):
         raise InputError(f"basis must be a ModalBasis, got {type(basis).__name__}")
     faces = np.asarray(basis.faces, dtype=np.int64).reshape(-1, 3)
@@ -109,8 +111,6 @@ def save_modes_vtkhdf(basis: Any, path: str | Path) -> Path:
         ``path`` not ending in ``.vtkhdf``, or ``basis`` not a ModalBasis.
     """
     import h5py
-
-    from .._atomic import atomic_path
 
     path = Path(path)
     if path.suffix.lower() != ".vtkhdf":
@@ -161,8 +161,6 @@ def strain_energy_density(model: Any, u: ArrayLike, element: str | None = None) 
     InputError
         ``u`` not of shape (T, m, 3) / (m, 3) for the model's m nodes, or not finite; an unknown element.
     """
-    from ..fem.elements import DEFAULT_ELEMENT, cube_stiffness_chunks
-
     arr = np.asarray(u, dtype=np.float64)
     single = arr.ndim == 2
     arr = arr[None] if single else arr
@@ -255,9 +253,6 @@ def write_xdmf_series(path: str | Path, rest: ArrayLike, faces: ArrayLike, times
     import os
     import shutil
     import tempfile
-
-    from ..errors import OutputError
-    from .render import _VTK_HEX_ORDER
 
     path = Path(path)
     rest = np.asarray(rest, dtype=np.float64)

@@ -14,15 +14,18 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .._validate import positive_scalar
 from ..errors import InputError, ScFemWarning
+from ..modes.basis import ModalBasis
+from ..modes.player import ModalPlayer, playback_warnings
+from .gltf import DEFAULT_AMPLITUDE
+from .modes import load_modes
+from .render import modes_sheet, render_animation, surface_polydata
 from .report import JobResult
 
 
 def _basis(modes: Any) -> Any:
     """A ModalBasis from a basis or a mode-file path."""
-    from ..modes.basis import ModalBasis
-    from .modes import load_modes
-
     return modes if isinstance(modes, ModalBasis) else load_modes(modes)
 
 
@@ -70,11 +73,6 @@ def play_modes(modes: Any, output: str | Path | None = None, *,
         Modes above half the frame rate (they alias), or motion too small to see
         (:func:`sc_fem.modes.player.playback_warnings`).
     """
-    from .._validate import positive_scalar
-    from ..modes.player import ModalPlayer, playback_warnings
-    from .gltf import DEFAULT_AMPLITUDE
-    from .render import render_animation
-
     player = ModalPlayer(_basis(modes))
     b = player.basis
     if impulse is not None:
@@ -113,8 +111,6 @@ def _window(player: Any, duration: float, fps: float, exaggerate: float) -> None
 
     import pyvista as pv
 
-    from .render import surface_polydata
-
     b = player.basis
     mesh = surface_polydata(b.vertices, b.faces)
     p = pv.Plotter(title="sc-fem play")
@@ -151,8 +147,6 @@ def modes_sheet_to_file(modes: Any, output: str | Path, *, n_modes: int = 6, col
     JobResult
         ``result`` the :class:`~sc_fem.ModalBasis`; the summary names the picture.
     """
-    from .render import modes_sheet
-
     basis = _basis(modes)
     path = modes_sheet(basis, output, n_modes=n_modes, columns=columns, up=up)
     return JobResult(written=[path], result=basis, text=f"wrote {path} ({min(n_modes, basis.n_modes)} modes)")

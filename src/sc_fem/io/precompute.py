@@ -13,7 +13,9 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from ..errors import InputError, ScFemWarning
+from ..modes.auto import format_resolution_table
 from .batch import BatchResult, expand_inputs, mesh_modes, run_batch
+from .modes import save_modes
 from .report import JobResult, stage, table
 
 
@@ -104,9 +106,6 @@ def precompute_modes(meshes: Iterable[str], output: str | Path, options: dict | 
     BatchInterrupted
         Ctrl-C during a batch (see :func:`run_batch`).
     """
-    from ..modes.auto import format_resolution_table
-    from .modes import save_modes
-
     meshes = expand_inputs(meshes)
     out = Path(output)
     if len(meshes) > 1 or out.is_dir() or str(output).endswith(("/", os.sep)) or scheduler:

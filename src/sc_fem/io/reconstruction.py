@@ -15,10 +15,12 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .._atomic import save_npz_atomic
+from .._atomic import atomic_path, save_npz_atomic
 from ..errors import FileFormatError, InputError
-from ..reconstruct.pipeline import ARRAYS, OPTIONAL, Reconstruction
+from ..reconstruct.pde import check_frame_indices
+from ..reconstruct.pipeline import ARRAYS, OPTIONAL, Reconstruction, markdown_report, reconstruct_animation
 from ._npz import read_versioned_npz
+from .animation import Animation, load_animation
 from .report import JobResult
 
 RECON_KIND = "sc_fem.reconstruction"
@@ -83,11 +85,6 @@ def reconstruct_to_file(animation: Any, output: str | Path, fit_frames: Sequence
         ``result`` the :class:`~sc_fem.reconstruct.pipeline.Reconstruction`; not ``ok`` when the PDE
         fit failed (its ``failures``; the files are written for inspection all the same).
     """
-    from .._atomic import atomic_path
-    from ..reconstruct.pde import check_frame_indices
-    from ..reconstruct.pipeline import markdown_report, reconstruct_animation
-    from .animation import Animation, load_animation
-
     anim = animation if isinstance(animation, Animation) else load_animation(animation)
     fit = check_frame_indices(np.asarray(fit_frames), anim.n_frames, name=frames_name)
     result = reconstruct_animation(anim, fit, **options)

@@ -23,6 +23,7 @@ from .._progress import stage_bar
 from .._validate import as_float_array, positive_int
 from ..errors import InputError
 from ..units import up_axis
+from ..dynamics.contact import Box, Ground, Sphere
 from ..lattice.cubes import CubeModel
 from ..modes.basis import ModalBasis
 from .opengl import ensure_rendering
@@ -99,8 +100,6 @@ def obstacle_meshes(obstacles, around: np.ndarray) -> list:
     """pyvista meshes of contact obstacles (:mod:`sc_fem.dynamics.contact`) to draw; the ground is a
     square 1.5x the horizontal size of ``around`` (k, 3) points."""
     pvm = pv()
-    from ..dynamics.contact import Box, Ground, Sphere
-
     lo, hi = np.min(around, axis=0), np.max(around, axis=0)
     out = []
     for ob in obstacles:                                # a few obstacles

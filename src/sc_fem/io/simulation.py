@@ -15,8 +15,13 @@ from typing import Any
 import numpy as np
 
 from .._progress import stage_bar
+from ..dynamics.job import run_simulation
 from ..errors import ScFemWarning
+from ..scene import Scene
+from .animation import keeps_lattice, write_animation
+from .paraview import lattice_xdmf_path
 from .report import JobResult, stage, table
+from .voxelize import model_summary
 
 
 def energy_line(rec: Any) -> str:
@@ -114,12 +119,6 @@ def simulate_to_file(mesh: Any, output: str | Path, *, duration: float, fps: flo
     ScFemWarning
         What the run reports in ``info["warnings"]`` (e.g. energy created with nothing feeding it).
     """
-    from ..dynamics.job import run_simulation
-    from ..scene import Scene
-    from .animation import keeps_lattice, write_animation
-    from .paraview import lattice_xdmf_path
-    from .voxelize import model_summary
-
     timings: dict = {}
     with nullcontext() if progress else stage_bar("simulate", enabled=False):     # False: no bar in any stage
         with stage("voxelize", timings, verbose):

@@ -47,9 +47,12 @@ from typing import Any
 
 import numpy as np
 
+from .._atomic import atomic_path
+from .._validate import positive_scalar
 from ..errors import InputError, OutputError, ScFemError
+from ..modes.player import ModalPlayer
 from ..units import up_axis
-from .animation import frame_rate
+from .animation import Animation, frame_rate
 from .gltf import DEFAULT_AMPLITUDE, UP_TO_GLTF, _load, _surface, mode_scales
 from .normals import _Normals
 
@@ -163,9 +166,6 @@ def _usd_uv(uv):
 
 def _modes_stage(pxr, basis, *, amplitude: float, impulse, mode, duration: float, fps: float, up: str, mesh):
     Gf, Sdf, Usd, UsdGeom, UsdShade, UsdSkel, Vt = pxr
-    from .._validate import positive_scalar
-    from ..modes.player import ModalPlayer
-
     amplitude = positive_scalar(amplitude, "amplitude")
     if impulse is not None and mode is not None:
         raise InputError("give impulse or mode for the baked playback, not both")
@@ -324,8 +324,6 @@ def usd_stage(source: Any, *, amplitude: float = DEFAULT_AMPLITUDE, impulse: tup
     InputError
         Bad options (``impulse``/``mode`` for an animation, both given, a bad ``up``).
     """
-    from .animation import Animation
-
     pxr = _pxr()
     obj = _load(source)
     if isinstance(obj, Animation):
@@ -375,8 +373,6 @@ def export_usd(source: Any, path: str | Path, *, amplitude: float = DEFAULT_AMPL
     InputError
         A suffix other than ``.usd``, ``.usda``, ``.usdc``, or bad options.
     """
-    from .._atomic import atomic_path
-
     path = Path(path)
     kind = path.suffix.lower()
     if kind not in USD_SUFFIXES:

@@ -28,8 +28,11 @@ from pathlib import Path
 
 import numpy as np
 
+from .._atomic import atomic_path
 from ..errors import FileFormatError, InputError, RenderError
 from ..units import up_axis
+from .animation import Animation
+from .gltf import DEFAULT_AMPLITUDE, _load, gltf_document, mode_scales
 
 BUNDLE = Path(__file__).with_name("_viewer") / "viewer.js"
 """The JavaScript bundle written by ``make viewer`` (esbuild of three.js and main.js)."""
@@ -189,10 +192,6 @@ def write_viewer(modes, path, *, amplitude: float | None = None, up: str = "z", 
     RenderError
         The JavaScript bundle has not been built (``make viewer`` needs npm).
     """
-    from .._atomic import atomic_path
-    from .animation import Animation
-    from .gltf import DEFAULT_AMPLITUDE, _load, gltf_document, mode_scales
-
     path = Path(path)
     if path.suffix.lower() not in (".html", ".htm"):
         raise InputError(f"the viewer is an .html page, got {path.name!r}")

@@ -7,7 +7,11 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..geometry.mesh import load_mesh
 from ..lattice.cubes import CubeModel
+from ..lattice.voxelize import voxelize
+from .model import save_model
+from .render import plot_cubes_over_mesh
 from .report import JobResult, stage, table
 
 VOXELIZE_OUTPUTS = (".png", ".npz", ".vtu")
@@ -77,10 +81,6 @@ def voxelize_to_file(mesh: object, output: str | Path, options: object = None, *
         ``result`` the :class:`~sc_fem.CubeModel`; the summary is :func:`model_summary` and the
         file written.
     """
-    from ..geometry.mesh import load_mesh
-    from ..lattice.voxelize import voxelize
-    from .model import save_model
-
     out = Path(output)
     if out.suffix.lower() not in VOXELIZE_OUTPUTS:
         raise InputError(f"unsupported output {out.name!r}: use .png, .npz or .vtu")
@@ -91,8 +91,6 @@ def voxelize_to_file(mesh: object, output: str | Path, options: object = None, *
         model = voxelize(mesh, options)
     with stage("write", timings, verbose):
         if out.suffix.lower() == ".png":
-            from .render import plot_cubes_over_mesh
-
             plot_cubes_over_mesh(model, mesh, out, up=up)
         else:
             save_model(model, out)

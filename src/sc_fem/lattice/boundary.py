@@ -20,7 +20,7 @@ import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Iterable, Union
+from typing import Callable, Iterable, Union
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -28,9 +28,7 @@ from numpy.typing import ArrayLike
 from .._validate import as_indices, as_points
 from ..errors import BoundaryConditionError, InputError
 from .cubes import CubeModel
-
-if TYPE_CHECKING:
-    from .embed import Embedding
+from .embed import Embedding, embedding
 
 _AXES = {"x": 0, "y": 1, "z": 2}
 _UNUM = r"(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?"
@@ -257,8 +255,6 @@ def fixed_nodes(model: CubeModel, fix: Iterable[Fix] | Fix | None = None, *, ver
         if mv is None:
             cubes = mesh_embedding.cube[idx]
         else:
-            from ..lattice.embed import embedding
-
             cubes = embedding(model, mv[idx]).cube     # the cube each vertex is embedded in (as W)
         mask[model.hexes[cubes].ravel()] = True
     return np.flatnonzero(mask)

@@ -17,6 +17,7 @@ from numpy.typing import ArrayLike
 
 from .._validate import as_float_array, check_material, positive_scalar
 from ..errors import InputError
+from ..material import lame
 from .topology import CONNECTIVITY, HEX_CORNERS, components, nodes_and_hexes, voxel_index  # noqa: F401
 
 if TYPE_CHECKING:
@@ -356,8 +357,6 @@ class CubeModel:
         lam, mu : ndarray, shape (n,)
             First Lame parameter and shear modulus of each cube, Pa.
         """
-        from ..material import lame
-
         lam, mu = lame(self.youngs, self.poisson)
         if material or self.stiffness == "full":
             return lam, mu

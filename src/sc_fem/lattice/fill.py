@@ -13,6 +13,7 @@ import numpy as np
 from .gridcut import cut_by_grid
 from .topology import unique_cells, voxel_index
 from .moments import FULL, box_moments, column_moments
+from ..geometry.inside import boundary_cone, crossing_number, winding_number
 from ..geometry.sampling import Samples, volume_samples
 
 OVERLAP_SAMPLES_PER_SIDE = 256
@@ -49,8 +50,6 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
     Surface cells of closed-but-leaky parts (holes) and of parts forced solid get ``n_sub^3``
     inside-tested sub-cube samples.
     """
-    from ..geometry.inside import boundary_cone, crossing_number, winding_number
-
     dims = np.array(occupied.shape)
     solid_faces = solid_part[parts.label]
     sf = parts.faces[solid_faces]

@@ -11,6 +11,7 @@ from scipy.spatial import cKDTree
 
 from .._validate import check_material
 from ..errors import InputError
+from ..geometry.inside import mesh_parts
 from ..geometry.sampling import Samples
 from ..material import resolve_field
 from .cubes import voxel_index
@@ -32,8 +33,6 @@ def _solid_parts(vertices, faces, fill: str, parts=None):
     if not len(faces):
         return None, None
     if parts is None:
-        from ..geometry.inside import mesh_parts
-
         parts = mesh_parts(vertices, faces)
     solid_part = {"auto": parts.closed, "solid": np.ones(parts.n_parts, bool),
                   "surface": np.zeros(parts.n_parts, bool)}[fill]

@@ -27,6 +27,7 @@ import numpy as np
 
 from . import moments_jit
 from .._jit import choose_kernel
+from .cubes import voxel_index
 
 EXPONENTS = np.array([(a, b, c) for a in range(3) for b in range(3) for c in range(3)], dtype=np.int64)
 """The 27 exponent triples (a, b, c), moment ``k`` is ``xi^a eta^b zeta^c`` with ``(a, b, c) = EXPONENTS[k]``."""
@@ -116,8 +117,6 @@ def column_moments(pieces: np.ndarray, origin: np.ndarray, pitch: float, dims: n
     it in the same column; higher moments likewise. With the surface cut along the grid planes
     every integral is an exact sum over the pieces, so thin plates cost nothing extra.
     """
-    from .cubes import voxel_index
-
     dims = np.asarray(dims, dtype=np.int64)
     idx = voxel_index(pieces.mean(axis=1), origin, pitch, dims)
     inner, column = piece_integrals(pieces, idx, origin, pitch)

@@ -9,7 +9,8 @@ import warnings
 import numpy as np
 
 from ..errors import ScFemWarning
-from ..geometry.inside import group_boxes
+from ..geometry.bodies import DEFAULT_WELD_FRACTION, find_bodies
+from ..geometry.inside import group_boxes, mesh_parts
 from ..geometry.sampling import Samples
 from .cubes import CubeModel, voxel_index
 from .mass import _inward, _mass_samples, _occupied_cells, _solid_parts
@@ -24,9 +25,6 @@ def _find_bodies(vertices, faces, opts: VoxelOptions, longest: float, cloud: boo
     every face, shape (m,), and the mesh's parts (None when not needed), found once."""
     if cloud or opts.topology == "grid":
         return None, np.zeros(len(faces), np.int64), None
-    from ..geometry.bodies import DEFAULT_WELD_FRACTION, find_bodies
-    from ..geometry.inside import mesh_parts
-
     parts = mesh_parts(vertices, faces)
     weld = DEFAULT_WELD_FRACTION * longest if opts.weld is None else opts.weld
     bodies = find_bodies(vertices, parts, weld)

@@ -22,6 +22,7 @@ import numpy as np
 from .._memory import available_memory
 from .._progress import stage_bar, step
 from ..errors import InputError, ScFemWarning
+from ..geometry import models
 from ..geometry.mesh import load_mesh
 from ..geometry.sampling import Samples, grid_counts, surface_grid_samples, surface_random_samples
 from ..material import Material
@@ -46,8 +47,6 @@ def _material_defaults(mesh, youngs, poisson, density) -> tuple[Any, Any, Any, s
     src = str(mesh.metadata.get("source", ""))
     base = DEFAULT_MATERIAL
     if src.startswith("builtin:"):
-        from ..geometry import models
-
         base = models.material(src)
     return (base.youngs if youngs is None else youngs, base.poisson if poisson is None else poisson,
             base.density if density is None else density, base.name)

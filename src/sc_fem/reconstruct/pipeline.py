@@ -19,6 +19,11 @@ import numpy as np
 
 from .._validate import positive_int
 from ..errors import InputError
+from .bspline import bspline_baseline
+from .meshmap import curve_mesh_map, curves_to_vertices, extract_curves, lattice_lines
+from .metrics import errors
+from .pde import check_frame_indices
+from .segments import MIN_POINTS, fit_segmented, max_segments
 
 MAX_MEAN_E_A = 0.02
 """A PDE fit whose mean E_A over the evaluated frames is above this (2 % of the curves' diameter;
@@ -174,12 +179,6 @@ def reconstruct_animation(animation, fit_frames, *, n_curves: int = 8, n_points:
         fit tried is kept); ``meta["segments"]`` and ``meta["pde_matches_bspline_at_fitted_frames"]`` say
         what happened.
     """
-    from .bspline import bspline_baseline
-    from .meshmap import curve_mesh_map, curves_to_vertices, extract_curves
-    from .metrics import errors
-    from .pde import check_frame_indices
-    from .segments import fit_segmented, max_segments
-
     anim = animation
     fit_idx = check_frame_indices(np.asarray(fit_frames), anim.n_frames, name="fit_frames")
     frames = np.arange(fit_idx[0], fit_idx[-1] + 1)
@@ -269,9 +268,6 @@ CURVE_SOURCES = ("auto", "stored", "lattice", "mesh")
 
 def _curve_source(anim, curves_from: str):
     """``(source, lattice lines or None)`` for :func:`reconstruct_animation`'s ``curves_from``."""
-    from .meshmap import lattice_lines
-    from .segments import MIN_POINTS
-
     if curves_from not in CURVE_SOURCES:
         raise InputError(f"curves_from must be one of {list(CURVE_SOURCES)}, got {curves_from!r}")
     if curves_from in ("auto", "stored") and anim.curves is not None:
