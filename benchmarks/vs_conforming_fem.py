@@ -54,6 +54,7 @@ from sc_fem.fem.highorder import DEGREES
 from sc_fem.fem.reference import solve_reference, uniform_field
 
 ELEMENTS = ("q1", "q1sri", "q1i")
+"""Default elements of the compact-solid comparison (``--elements`` also takes ``q2``, ``q3``)."""
 AXES = "xyz"
 
 
@@ -90,13 +91,14 @@ def run_sc_fem(path, mat, up, r, element):
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        model = sc_fem.voxelize(mesh, resolution=r, **mat)
+        scene = sc_fem.Scene.from_mesh(mesh, resolution=r, **mat)     # the mesh too: q2 / q3 are made from it
+    model = scene.model
     t_vox = time.perf_counter() - t0
     t0 = time.perf_counter()
-    basis = sc_fem.modal(model, n_modes=10, element=element)
+    basis = sc_fem.modal(scene, n_modes=10, element=element)
     t_modal = time.perf_counter() - t0
     t0 = time.perf_counter()
-    st = sc_fem.solve_static(model, element=element, fix=spec, gravity=g, mesh=mesh)
+    st = sc_fem.solve_static(sc_fem.Scene.from_model(model, mesh, fix=spec), element=element, gravity=g)
     t_static = time.perf_counter() - t0
     umax = float(np.linalg.norm(st.vertex_displacements, axis=1).max())
     return dict(cubes=model.n_cubes, mass=model.total_mass, freqs=basis.frequencies[:10], umax=umax,
@@ -524,7 +526,7 @@ def run_thin_higher_order(geo: dict, r: int, element: str, ref: dict, topo: dict
     """:func:`run_thin_sc_fem` for degree-2/3 cubes: modes and static solution sampled at the
     reference's vertices through the degree-p field; gravity through the consistent mass, the side
     load through the field's transpose (the same loads :func:`sc_fem.solve_static` applies)."""
-    from sc_fem.fem.highorder import HighOrderAssembler
+    from sc_fem.fem.highorder import HighOrderAssembler, HighOrderCubes
     from sc_fem.fem.linsolve import factorize
     from sc_fem.modes.options import ModalRequest
     from sc_fem.modes.solve import solve_scene
@@ -545,7 +547,7 @@ def run_thin_higher_order(geo: dict, r: int, element: str, ref: dict, topo: dict
     t0 = time.perf_counter()
     spec = f"{AXES[geo['fix_axis']]}<min+0"
     held = sc_fem.Scene.from_model(model, geo["mesh"], fix=spec)
-    sa = HighOrderAssembler(asm.cubes, fixed_nodes=held.fixed_nodes)    # the same integrals: not twice
+    sa = HighOrderAssembler(HighOrderCubes(held, element))      # condensed with the clamped face's material held
     K = sa.stiffness()
     if geo["gravity"] is not None:
         b = sa.mass() @ np.tile(geo["gravity"], sa.cubes.n_nodes)[sa.free_dofs]
@@ -553,7 +555,7 @@ def run_thin_higher_order(geo: dict, r: int, element: str, ref: dict, topo: dict
         pts = side_load_points(geo["load_boxes"])
         fp = np.zeros((len(pts), 3))
         fp[:, 0] = SIDE_LOAD / len(pts)
-        b = (sa.cubes.map_points(pts).T @ fp).reshape(-1)[sa.free_dofs]
+        b = (sa.cubes.map_points(pts).T @ fp.reshape(-1))[sa.free_dofs]
     x = factorize(K).solve(b)
     u = sa.vertex_field(x, sa.cubes.map_points(ref["verts"]))
     t_static = time.perf_counter() - t0

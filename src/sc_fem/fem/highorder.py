@@ -1,24 +1,21 @@
-"""Higher-order cubes: a degree-``p`` Lagrange field in every cube (the p-version finite cell method).
+"""Higher-order cubes: a degree-``p`` Lagrange field on the cubes (the p-version finite cell method).
 
-A trilinear cube moves everything inside it with one trilinear field. A cube that holds the web
+A trilinear cube moves everything inside it with one trilinear field: a cube that holds the web
 and a flange of an I-section cannot let both walls warp as they do in torsion, and the section
-twists tens of times too stiffly. Raising the degree of the field inside each cube (Parvizian,
-Duester & Rank 2007, the finite cell method) lets the walls inside a cube deform apart; measured
-on thin-walled members (``benchmarks/thin_pfcm.py``) the error of the ten lowest frequencies of an
-I-section beam at 32 cubes falls from 53 % (``q1i``) to 15 % with ``"q2"`` and 4-5 % with ``"q3"``.
+twists tens of times too stiffly. The higher-order cubes carry ``(p + 1)^3`` nodes per cube at the
+points ``(i, j, k) / p`` (:mod:`sc_fem.fem.lagrange`), shared with the neighbouring cubes of the same
+body (keyed by their position on the lattice refined ``p`` times and by the body, as the corners
+are: :attr:`sc_fem.lattice.cubes.CubeModel.piece`). A full cube is integrated exactly (Gauss). A
+partly filled cube (:data:`PARTIAL`) is by default condensed from a fine model of its content
+(:mod:`sc_fem.fem.multiscale`: its walls deform as the fine model does, only the faces it shares
+follow the polynomial), or integrated over its filled region (``"moments"``: the model voxelized
+:data:`REFINE` times finer, six points of equal weight per fine cube reproducing its exact moments
+of degree 2, :func:`sigma_points`). Material (Lame parameters, density) is the coarse cube's.
 
-The field: ``(p + 1)^3`` nodes per cube at the points ``(i, j, k) / p`` of the cube, shared with
-the neighbouring cubes of the same body (nodes are keyed by their position on the lattice refined
-``p`` times and by the body, as the cube corners are: :attr:`sc_fem.lattice.cubes.CubeModel.piece`).
-
-The integrals over each cube's filled region: a full cube uses the exact tensor Gauss rule; a
-partly filled cube uses the model voxelized :data:`REFINE` times finer, each fine cube's exact
-moments of degree 2 (:mod:`sc_fem.lattice.moments`) turned into six points of equal weight that
-reproduce its volume, centroid and second moments (:func:`sigma_points`). Material (Lame
-parameters, density) is the coarse cube's.
-
-Higher-order cubes serve the linear analyses: :func:`sc_fem.modal` and :func:`sc_fem.solve_static`
-with ``element="q2"`` or ``"q3"``. The source mesh follows them by the same degree-``p`` field
+Measured on thin-walled steel members (``docs/accuracy.md``): the ten lowest frequencies of an
+I-section beam at 32 cubes are 53 % off with ``q1i``, 4.9 % with ``"q3"`` integrated, 1.6 % with
+``"q3"`` condensed (2.9 % at 16 cubes). Higher-order cubes serve the linear analyses
+(:func:`sc_fem.modal`, :func:`sc_fem.solve_static`); the source mesh follows their field
 (:attr:`HighOrderCubes.W`).
 """
 
@@ -31,12 +28,19 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
 
+from .._validate import positive_int
 from ..errors import InputError
 from ..lattice.cubes import HEX_CORNERS
 from ..lattice.embed import embedding
 from ..lattice.moments import EXPONENTS
 from ..lattice.topology import fine_to_coarse, keyed_nodes
 from ..lattice.voxelize import voxelize
+from .lagrange import lagrange_1d, shape_functions  # noqa: F401 (lagrange_1d re-exported)
+from .multiscale import FINE_SPACING, Condensation, choose_refine
+
+PARTIAL = ("multiscale", "moments")
+"""How a partly filled cube's matrices are made: condensed from a fine model of its content
+(:mod:`sc_fem.fem.multiscale`), or integrated over its filled region (sigma points of finer cubes' moments)."""
 
 DEGREES: dict[str, int] = {"q2": 2, "q3": 3}
 """Higher-order element names and their polynomial degree."""
@@ -50,36 +54,6 @@ method's usual stabilisation: nodes whose support holds almost no material stay 
 
 CHUNK = 32
 """Partly filled cubes integrated per batched product (memory ~ CHUNK * points * (3 (p+1)^3)^2)."""
-
-
-def lagrange_1d(p: int, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Values and derivatives, each shape (len(t), p + 1), of the degree-``p`` Lagrange basis on
-    the equispaced points ``j / p`` of [0, 1] at ``t`` (1-D, reference units)."""
-    t = np.asarray(t, dtype=float)
-    nodes = np.linspace(0.0, 1.0, p + 1)
-    diff = t[:, None] - nodes[None, :]                                  # (n, p + 1)
-    val = np.empty((len(t), p + 1))
-    der = np.zeros((len(t), p + 1))
-    for j in range(p + 1):                                              # loop over the p + 1 basis functions
-        others = [m for m in range(p + 1) if m != j]
-        den = np.prod(nodes[j] - nodes[others])
-        val[:, j] = np.prod(diff[:, others], axis=1) / den
-        for k in others:
-            der[:, j] += np.prod(diff[:, [m for m in others if m != k]], axis=1) / den
-    return val, der
-
-
-def shape_functions(p: int, xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Tensor-product basis at reference points ``xi`` (n, 3) in [0, 1]^3: values (n, nb) and
-    reference gradients (n, 3, nb), ``nb = (p + 1)^3``, node ``(i, j, k)`` at index
-    ``(i (p + 1) + j) (p + 1) + k``."""
-    (vx, dx), (vy, dy), (vz, dz) = (lagrange_1d(p, xi[:, a]) for a in range(3))
-    n = len(xi)
-    N = np.einsum("qi,qj,qk->qijk", vx, vy, vz).reshape(n, -1)
-    dN = np.stack([np.einsum("qi,qj,qk->qijk", dx, vy, vz).reshape(n, -1),
-                   np.einsum("qi,qj,qk->qijk", vx, dy, vz).reshape(n, -1),
-                   np.einsum("qi,qj,qk->qijk", vx, vy, dz).reshape(n, -1)], axis=1)
-    return N, dN
 
 
 def sigma_points(moments: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -140,12 +114,17 @@ class HighOrderCubes:
     Parameters
     ----------
     scene : Scene
-        The model, its source mesh (the partly filled cubes are integrated from it) and its
-        fixed nodes.
+        The model, its source mesh (the partly filled cubes are made from it) and its fixed nodes.
     element : {"q2", "q3"}
         The degree (2 or 3).
-    refine : int
-        Fine cubes per cube edge for the integrals over partly filled cubes (:data:`REFINE`).
+    refine : int or "auto"
+        Fine cubes per cube edge of the finer model that the partly filled cubes are made from;
+        ``"auto"``: for ``"multiscale"`` about the thin walls' thickness
+        (:func:`sc_fem.fem.multiscale.choose_refine`), for ``"moments"`` :data:`REFINE`.
+    partial : {"multiscale", "moments"}
+        How a partly filled cube's matrices are made (:data:`PARTIAL`): condensed from the fine
+        model of its content (:mod:`sc_fem.fem.multiscale`; its vertices follow the fine field), or
+        the degree-``p`` field integrated over its filled region (six points per fine cube).
 
     Attributes
     ----------
@@ -158,17 +137,27 @@ class HighOrderCubes:
         The node at each of the model's cube corners (:attr:`CubeModel.nodes` order).
     fixed_dofs : ndarray of int
         DOFs held by the scene's fixed nodes (:meth:`held_dofs`).
-    W : scipy.sparse.csr_matrix, shape (n_vertices, N)
-        The field at the source vertices: node displacements to vertex displacements.
+    W : scipy.sparse.csr_matrix, shape (3 n_vertices, 3 N)
+        The field at the source vertices: node DOFs to vertex displacement components.
+    refine : int
+        Fine cubes per cube edge used.
+    wall : float or None
+        The walls' thickness ``refine="auto"`` chose it for, model units.
     """
 
-    def __init__(self, scene, element: str, *, refine: int = REFINE) -> None:
+    def __init__(self, scene, element: str, *, refine: int | str = "auto", partial: str = "multiscale") -> None:
         if element not in DEGREES:
             raise InputError(f"higher-order element must be one of {sorted(DEGREES)}, got {element!r}")
         if scene.mesh is None or not len(scene.faces):
             raise InputError(f"element {element!r} integrates the cubes over the source mesh: the scene has no "
                              "surface mesh (build it with Scene.from_mesh)")
-        self.scene, self.element, self.degree, self.refine = scene, element, DEGREES[element], int(refine)
+        if partial not in PARTIAL:
+            raise InputError(f"partial must be one of {PARTIAL}, got {partial!r}")
+        self.scene, self.element, self.degree, self.partial = scene, element, DEGREES[element], partial
+        self.wall = None                                 # the walls' thickness the refinement was chosen for
+        if refine == "auto" and partial == "multiscale":
+            refine, self.wall = choose_refine(scene.model, scene.mesh.vertices, scene.mesh.faces)
+        self.refine = REFINE if refine == "auto" else positive_int(refine, "refine")
         model = scene.model
         p = self.degree
         nb = (p + 1) ** 3
@@ -184,6 +173,7 @@ class HighOrderCubes:
         self._local = local
         self.fixed_dofs = self.held_dofs(scene.fixed_nodes)
         self._G = self._M = None
+        self._condensation = self._condensed = self._W = None
 
     @property
     def n_dofs(self) -> int:
@@ -223,21 +213,26 @@ class HighOrderCubes:
         return (3 * nodes[:, None] + np.arange(3)).ravel()
 
     # ------------------------------------------------------------------ integrals
-    def _quadrature(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Points of the partly filled cubes: (cube (q,), reference coordinates (q, 3), weight (q,) in
-        units of the cube's volume), from the model voxelized ``refine`` times finer."""
+    def _fine_model(self):
+        """The scene's source voxelized ``refine`` times finer, with the coarse model's options."""
         model, s = self.scene.model, self.refine
         info = model.info
         opts = dict(pitch=model.pitch / s, scale=model.scale, fill=info.get("fill", "auto"),
                     occupancy=info.get("occupancy", "sample"), topology=info.get("topology", "pieces"),
-                    keep="all", stiffness="moments")
+                    keep="all", stiffness="moments", spacing=FINE_SPACING * model.pitch / s)
         if info.get("weld") is not None:
             opts["weld"] = info["weld"]
         if info.get("shell_thickness"):
             opts["shell_thickness"] = info["shell_thickness"]
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")              # the fine grid's notes repeat the coarse one's
-            fine = voxelize(self.scene.mesh, **opts)
+            return voxelize(self.scene.mesh, **opts)
+
+    def _quadrature(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Points of the partly filled cubes: (cube (q,), reference coordinates (q, 3), weight (q,) in
+        units of the cube's volume), from the model voxelized ``refine`` times finer."""
+        model, s = self.scene.model, self.refine
+        fine = self._fine_model()
         hit, cube, local = fine_to_coarse(model, fine, s)
         pts, w = sigma_points(fine.moments[hit])
         xi = (local[:, None, :] + pts) / s
@@ -255,7 +250,10 @@ class HighOrderCubes:
         partial = np.flatnonzero(frac < 1.0 - 1e-12)
         G = np.broadcast_to(Gf, (model.n_cubes,) + Gf.shape).copy()
         M = np.broadcast_to(Mf, (model.n_cubes,) + Mf.shape).copy()
-        if len(partial):
+        if len(partial) and self.partial == "multiscale":
+            G[partial] *= EMPTY                      # the condensed fine models are added on top
+            M[partial] *= EMPTY
+        elif len(partial):
             cube, xi, w = self._quadrature()
             is_partial = np.zeros(model.n_cubes, dtype=bool)
             is_partial[partial] = True
@@ -285,13 +283,40 @@ class HighOrderCubes:
         self._G, self._M = G, M
         return G, M
 
+    @property
+    def condensed_cubes(self) -> np.ndarray:
+        """The partly filled cubes whose matrices are condensed from fine models (``partial="multiscale"``)."""
+        if self.partial != "multiscale":
+            return np.zeros(0, dtype=np.int64)
+        return np.flatnonzero(np.asarray(self.scene.model.fraction, dtype=float) < 1.0 - 1e-12)
+
+    @property
+    def condensation(self) -> Condensation | None:
+        """The partly filled cubes' fine models, set up once (:class:`sc_fem.fem.multiscale.Condensation`;
+        None when nothing is condensed). Their material is held where the scene fixes a cube face."""
+        cubes = self.condensed_cubes
+        if self._condensation is None and len(cubes):
+            model = self.scene.model
+            held = np.zeros(model.n_nodes, dtype=bool)
+            held[np.asarray(self.scene.fixed_nodes, dtype=np.int64)] = True
+            self._condensation = Condensation(model, cubes, self._fine_model(), self.refine, self.degree, held=held)
+        return self._condensation
+
+    def _condensed_matrices(self) -> tuple[np.ndarray, np.ndarray] | None:
+        if self._condensed is None and self.condensation is not None:
+            self._condensed = self.condensation.matrices()
+        return self._condensed
+
     def element_stiffness(self) -> np.ndarray:
         """Element stiffness matrices (n_cubes, 3 nb, 3 nb), N/m."""
         model = self.scene.model
         G, _ = self._integrals()
         lam, mu = model.lame(material=True)
         h = float(model.pitch * model.scale)
-        return h * _stiffness_from_G(G, np.asarray(lam, float), np.asarray(mu, float))
+        K = h * _stiffness_from_G(G, np.asarray(lam, float), np.asarray(mu, float))
+        if (c := self._condensed_matrices()) is not None:
+            K[self.condensed_cubes] += c[0]
+        return K
 
     def element_mass(self) -> np.ndarray:
         """Consistent element mass matrices (n_cubes, 3 nb, 3 nb), kg: ``rho int N_i N_j`` per component."""
@@ -301,7 +326,10 @@ class HighOrderCubes:
         rho = np.asarray(model.density, dtype=float) * h**3
         nb = M.shape[1]
         out = (rho[:, None, None, None, None] * M[:, :, None, :, None] * np.eye(3)[None, None, :, None, :])
-        return out.reshape(model.n_cubes, 3 * nb, 3 * nb)
+        out = out.reshape(model.n_cubes, 3 * nb, 3 * nb)
+        if (c := self._condensed_matrices()) is not None:
+            out[self.condensed_cubes] += c[1]
+        return out
 
     def _assemble(self, Ke: np.ndarray) -> sp.csr_matrix:
         n = self.n_dofs
@@ -319,18 +347,39 @@ class HighOrderCubes:
         return self._assemble(self.element_mass())
 
     # ------------------------------------------------------------------ the source mesh
-    def map_points(self, points: np.ndarray) -> sp.csr_matrix:
-        """The field at ``points`` (n, 3), model units: matrix (n, N), rows sum to 1."""
-        emb = embedding(self.scene.model, points)
+    def map_points(self, points: ArrayLike) -> sp.csr_matrix:
+        """The field at ``points``: node DOFs (``3 node + c``) to the points' displacement components.
+
+        A point in a full cube follows the cube's polynomial; one in a condensed cube, its fine
+        model's field (one more solve of the fine models, :meth:`Condensation.point_map`).
+
+        Parameters
+        ----------
+        points : array_like, shape (k, 3)
+            Positions, model units.
+
+        Returns
+        -------
+        scipy.sparse.csr_matrix, shape (3 k, 3 N)
+        """
+        pts = np.asarray(points, dtype=float)
+        emb = embedding(self.scene.model, pts)
         N, _ = shape_functions(self.degree, emb.local)
-        nb = N.shape[1]
-        rows = np.repeat(np.arange(len(emb.local)), nb)
-        return sp.csr_matrix((N.ravel(), (rows, self._node[emb.cube].ravel())), shape=(len(emb.local), self.n_nodes))
+        nv, nb = N.shape
+        vals = np.einsum("vj,cd->vcjd", N, np.eye(3))                       # (v, 3, nb, 3)
+        cols = np.broadcast_to(self.dofs[emb.cube].reshape(nv, 1, nb, 3), vals.shape)
+        inside = np.flatnonzero(np.isin(emb.cube, self.condensed_cubes))
+        if len(inside):                                                      # the fine field instead
+            vals[inside] = self.condensation.point_map(pts[inside], emb.cube[inside]).reshape(-1, 3, nb, 3)
+        rows = np.broadcast_to((3 * np.arange(nv)[:, None] + np.arange(3))[:, :, None, None], vals.shape)
+        return sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * nv, self.n_dofs))
 
     @property
     def W(self) -> sp.csr_matrix:
-        """The field at the scene's source vertices, shape (n_vertices, N)."""
-        return self.map_points(self.scene.rest_vertices)
+        """The field at the scene's source vertices, shape (3 n_vertices, 3 N) (:meth:`map_points`); computed once."""
+        if self._W is None:
+            self._W = self.map_points(self.scene.rest_vertices)
+        return self._W
 
 
 class HighOrderAssembler:
@@ -396,5 +445,5 @@ class HighOrderAssembler:
     def vertex_field(self, u_free: np.ndarray, W: sp.csr_matrix) -> np.ndarray:
         """The field at the source vertices, (n, 3) or (n, 3, k), through ``W`` = :attr:`HighOrderCubes.W`."""
         full = self.expand_all(u_free)
-        flat = full.reshape(full.shape[0], -1)
-        return np.asarray(W @ flat).reshape((W.shape[0], 3) + full.shape[2:])
+        flat = full.reshape(3 * full.shape[0], -1)
+        return np.asarray(W @ flat).reshape((W.shape[0] // 3, 3) + full.shape[2:])

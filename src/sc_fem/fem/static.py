@@ -237,7 +237,7 @@ def solve_static(scene: Scene, *, element: str = DEFAULT_ELEMENT, forces: ArrayL
         if g is not None:
             b = b + asm.mass() @ np.tile(g, asm.cubes.n_nodes)[asm.free_dofs]
         if pf is not None:
-            b = b + (W.T @ pf).reshape(-1)[asm.free_dofs]
+            b = b + (W.T @ pf.reshape(-1))[asm.free_dofs]
     else:
         b = asm.restrict(f)
     amg_data = ((lambda: (rigid_body_modes(asm.nodes_m, asm.free_dofs), None)) if higher else

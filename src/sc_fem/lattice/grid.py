@@ -52,12 +52,39 @@ def grid_for(bounds: np.ndarray, *, resolution: int | None = None, pitch: float 
 
 
 def _estimate_bytes(vertices, faces, bounds, res) -> int:
-    origin, pitch, dims = grid_for(bounds, resolution=res)
+    _, pitch, dims = grid_for(bounds, resolution=res)
+    return estimate_bytes(vertices, faces, dims, pitch * SPACING_FRACTION)
+
+
+def estimate_bytes(vertices: np.ndarray, faces: np.ndarray, dims: np.ndarray, spacing: float,
+                   subsamples: int = 0) -> int:
+    """Bytes :func:`sc_fem.voxelize` needs on a grid of ``dims`` cubes with surface samples
+    ``spacing`` apart (model units) and ``subsamples^3`` inside-test samples per boundary cube (the
+    estimate its memory guard refuses a grid by).
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (v, 3)
+        The surface's vertices (model units); a point cloud's points when ``faces`` is empty.
+    faces : ndarray of int, shape (f, 3)
+        Its triangles.
+    dims : ndarray of int, shape (3,)
+        Cubes along each axis.
+    spacing : float
+        Surface sample spacing, model units.
+    subsamples : int
+        Inside-test samples per boundary cube edge (0: not counted).
+
+    Returns
+    -------
+    int
+    """
     n = len(vertices)
     if len(faces):
-        k_s, k_t = grid_counts(vertices, faces, pitch * SPACING_FRACTION)
+        k_s, k_t = grid_counts(vertices, faces, spacing)
         n = int((k_s * k_t).sum())
-    return int(np.prod(dims.astype(float)) * _BYTES_PER_GRID_CELL + n * _BYTES_PER_SAMPLE)
+    n += n * subsamples**3 // 32                 # boundary cubes (~ samples / 40) with subsamples^3 each
+    return int(np.prod(np.asarray(dims, dtype=float)) * _BYTES_PER_GRID_CELL + n * _BYTES_PER_SAMPLE)
 
 
 def _memory_guard(vertices, faces, bounds, dims, n_samples, budget, resolution) -> None:

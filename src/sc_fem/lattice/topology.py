@@ -17,6 +17,10 @@ HEX_CORNERS = np.array(
 """Offsets (dx, dy, dz) of the 8 corners of a cube, in scikit-fem ``MeshHex`` order."""
 
 CONNECTIVITY = {"face": 1, "edge": 2, "vertex": 3}
+
+NEIGHBOURS = np.array([(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1)
+                       if (a, b, c) != (0, 0, 0)], dtype=np.int64)
+"""The offsets (26, 3) of a cell's face, edge and corner neighbours."""
 """Neighbourhoods for connected components: cubes sharing a face (6-connected, default),
 an edge (18-connected) or a corner (26-connected)."""
 
