@@ -9,7 +9,7 @@ OUT    ?= out
 
 .PHONY: demo test venv viewer bench notebooks docs clean
 
-$(STAMP): pyproject.toml Makefile
+$(STAMP): pyproject.toml Makefile .ci/install-cholmod.sh .ci/install-browser.sh
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e ".[test]"

@@ -14,6 +14,7 @@ from ..errors import InputError
 from ..lattice.cubes import CubeModel
 from ..lattice.topology import HEX_CORNERS, NEIGHBOURS, fine_to_coarse
 from .elements import cube_mass_chunks, cube_stiffness
+from .scatter import block_pattern, scatter
 
 
 def _tied_nodes(coarse: CubeModel, cubes: np.ndarray, node_cube: np.ndarray, node_q: np.ndarray,
@@ -92,14 +93,6 @@ def _same_content(coarse: CubeModel, cubes: np.ndarray, fine: CubeModel, fidx: n
     table = np.concatenate([np.stack(sig, axis=1).view(np.int64), mat.view(np.int64)], axis=1)
     _, first, inv = np.unique(table, axis=0, return_index=True, return_inverse=True)
     return first[inv.ravel()]
-
-
-def _assemble(Ke: np.ndarray, hexes: np.ndarray, n: int) -> sp.csr_matrix:
-    dofs = (3 * hexes[:, :, None] + np.arange(3)).reshape(len(hexes), 24)
-    rows = np.repeat(dofs, 24, axis=1).ravel()
-    cols = np.tile(dofs, (1, 24)).ravel()
-    A = sp.csr_matrix((Ke.ravel(), (rows, cols)), shape=(n, n))
-    return ((A + A.T) * 0.5).tocsr()
 
 
 @dataclass(frozen=True, eq=False)
@@ -193,8 +186,8 @@ def fine_system(coarse: CubeModel, cubes: np.ndarray, fine: CubeModel, s: int, e
     hf3 = (fine.pitch * fine.scale) ** 3
     sub = replace(fine.subset(mask), youngs=coarse.youngs[own], poisson=coarse.poisson[own],
                   density=coarse.density[own], mass=coarse.density[own] * np.asarray(fine.fraction[fidx], float) * hf3)
-    nn = 3 * len(used)
-    K = _assemble(cube_stiffness(sub, element), hexes, nn)
-    M = _assemble(cube_mass_chunks(sub, sub.mass)(0, sub.n_cubes).reshape(-1, 24, 24), hexes, nn)
+    pattern = block_pattern(hexes, len(used))
+    K = scatter(pattern, cube_stiffness(sub, element))
+    M = scatter(pattern, cube_mass_chunks(sub, sub.mass)(0, sub.n_cubes).reshape(-1, 24, 24))
     return FineSystem(K=K, M=M, tied=tied[used], node_cube=rpos[node_cube[used]], node_q=node_q[used], hexes=hexes,
                       fine_cube=fc, fine_local=fl, slot=slot.ravel(), n=len(reps))

@@ -32,11 +32,12 @@ from .._validate import positive_int
 from ..errors import InputError
 from ..lattice.cubes import HEX_CORNERS
 from ..lattice.embed import embedding
-from ..lattice.moments import EXPONENTS
 from ..lattice.topology import fine_to_coarse, keyed_nodes
 from ..lattice.voxelize import voxelize
+from .cutcell import moment_integrals, sigma_points  # noqa: F401 (sigma_points re-exported)
 from .lagrange import lagrange_1d, shape_functions  # noqa: F401 (lagrange_1d re-exported)
 from .multiscale import FINE_SPACING, Condensation, choose_refine
+from .scatter import block_pattern, scatter
 
 PARTIAL = ("multiscale", "moments")
 """How a partly filled cube's matrices are made: condensed from a fine model of its content
@@ -51,39 +52,6 @@ REFINE = 4
 EMPTY = 1e-8
 """The empty part of a partly filled cube carries this fraction of the material (the finite cell
 method's usual stabilisation: nodes whose support holds almost no material stay bounded)."""
-
-CHUNK = 32
-"""Partly filled cubes integrated per batched product (memory ~ CHUNK * points * (3 (p+1)^3)^2)."""
-
-
-def sigma_points(moments: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Six points and weights reproducing a region's moments of total degree <= 2.
-
-    Parameters
-    ----------
-    moments : ndarray, shape (n, 27)
-        Moments of each region (:data:`sc_fem.lattice.moments.EXPONENTS` order), reference units.
-
-    Returns
-    -------
-    points : ndarray, shape (n, 6, 3)
-        ``mu +- sqrt(3 lambda_k) e_k``: the centroid moved along the principal axes of the
-        region's second moments (``lambda_k``, ``e_k``).
-    weights : ndarray, shape (n, 6)
-        ``volume / 6`` each (never negative, so the stiffness stays positive semi-definite).
-    """
-    col = {tuple(e): k for k, e in enumerate(EXPONENTS.tolist())}
-    V = np.maximum(moments[:, col[(0, 0, 0)]], 1e-300)
-    unit = np.eye(3, dtype=np.int64)
-    mu = np.stack([moments[:, col[tuple(unit[a])]] for a in range(3)], axis=1) / V[:, None]
-    second = np.empty((len(V), 3, 3))
-    for a in range(3):                                                  # the 6 second moments
-        for b in range(3):
-            second[:, a, b] = moments[:, col[tuple(unit[a] + unit[b])]] / V
-    lam, vec = np.linalg.eigh(second - mu[:, :, None] * mu[:, None, :])
-    off = (vec * np.sqrt(3.0 * np.maximum(lam, 0.0))[:, None, :]).transpose(0, 2, 1)   # (n, 3 axes, 3)
-    points = np.concatenate([mu[:, None, :] + off, mu[:, None, :] - off], axis=1)
-    return points, np.repeat(V[:, None] / 6.0, 6, axis=1)
 
 
 @lru_cache(maxsize=None)
@@ -173,7 +141,7 @@ class HighOrderCubes:
         self._local = local
         self.fixed_dofs = self.held_dofs(scene.fixed_nodes)
         self._G = self._M = None
-        self._condensation = self._condensed = self._W = None
+        self._condensation = self._condensed = self._W = self._vertex_map = self._pattern = None
 
     @property
     def n_dofs(self) -> int:
@@ -245,7 +213,6 @@ class HighOrderCubes:
             return self._G, self._M
         model, p = self.scene.model, self.degree
         Gf, Mf = _full_cube(p)
-        nb = Mf.shape[0]
         frac = np.asarray(model.fraction, dtype=float)
         partial = np.flatnonzero(frac < 1.0 - 1e-12)
         G = np.broadcast_to(Gf, (model.n_cubes,) + Gf.shape).copy()
@@ -253,33 +220,10 @@ class HighOrderCubes:
         if len(partial) and self.partial == "multiscale":
             G[partial] *= EMPTY                      # the condensed fine models are added on top
             M[partial] *= EMPTY
-        elif len(partial):
-            cube, xi, w = self._quadrature()
-            is_partial = np.zeros(model.n_cubes, dtype=bool)
-            is_partial[partial] = True
-            sel = is_partial[cube]
-            cube, xi, w = cube[sel], xi[sel], w[sel]
-            order = np.argsort(cube, kind="stable")
-            cube, xi, w = cube[order], xi[order], w[order]
-            starts = np.searchsorted(cube, partial)
-            counts = np.searchsorted(cube, partial, side="right") - starts
-            G[partial] *= EMPTY
-            M[partial] *= EMPTY
-            for c0 in range(0, len(partial), CHUNK):                   # batches of partly filled cubes
-                sl = slice(c0, c0 + CHUNK)
-                idx, cnt, st = partial[sl], counts[sl], starts[sl]
-                qmax = int(cnt.max()) if len(cnt) else 0
-                if qmax == 0:
-                    continue
-                take = st[:, None] + np.arange(qmax)[None, :]
-                valid = np.arange(qmax)[None, :] < cnt[:, None]
-                take = np.where(valid, take, 0)
-                N, dN = shape_functions(p, xi[take.ravel()])
-                sw = np.sqrt(np.where(valid, w[take], 0.0)).reshape(-1)
-                X = (dN * sw[:, None, None]).reshape(len(idx), qmax, 3 * nb)
-                Y = (N * sw[:, None]).reshape(len(idx), qmax, nb)
-                G[idx] += np.matmul(X.transpose(0, 2, 1), X).reshape(len(idx), 3, nb, 3, nb)
-                M[idx] += np.matmul(Y.transpose(0, 2, 1), Y)
+        elif len(partial):                           # the field integrated over the filled region
+            g, m = moment_integrals(p, partial, *self._quadrature())
+            G[partial] = EMPTY * G[partial] + g
+            M[partial] = EMPTY * M[partial] + m
         self._G, self._M = G, M
         return G, M
 
@@ -303,8 +247,12 @@ class HighOrderCubes:
         return self._condensation
 
     def _condensed_matrices(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The condensed cubes' stiffness and mass, and the map of the source vertices in them (the same solves)."""
         if self._condensed is None and self.condensation is not None:
-            self._condensed = self.condensation.matrices()
+            emb = embedding(self.scene.model, self.scene.rest_vertices)
+            inside = np.flatnonzero(np.isin(emb.cube, self.condensed_cubes))
+            K, M, pmap = self.condensation.matrices(self.scene.rest_vertices[inside], emb.cube[inside])
+            self._condensed, self._vertex_map = (K, M), (inside, pmap)
         return self._condensed
 
     def element_stiffness(self) -> np.ndarray:
@@ -332,11 +280,9 @@ class HighOrderCubes:
         return out
 
     def _assemble(self, Ke: np.ndarray) -> sp.csr_matrix:
-        n = self.n_dofs
-        rows = np.repeat(self.dofs, self.dofs.shape[1], axis=1).ravel()
-        cols = np.tile(self.dofs, (1, self.dofs.shape[1])).ravel()
-        A = sp.csr_matrix((Ke.ravel(), (rows, cols)), shape=(n, n))
-        return ((A + A.T) * 0.5).tocsr()
+        if self._pattern is None:                         # the stiffness and the mass share it
+            self._pattern = block_pattern(self._node, self.n_nodes)
+        return scatter(self._pattern, Ke)
 
     def stiffness(self) -> sp.csr_matrix:
         """Global stiffness, shape (n_dofs, n_dofs), N/m."""
@@ -347,7 +293,7 @@ class HighOrderCubes:
         return self._assemble(self.element_mass())
 
     # ------------------------------------------------------------------ the source mesh
-    def map_points(self, points: ArrayLike) -> sp.csr_matrix:
+    def map_points(self, points: ArrayLike, *, _known: tuple | None = None) -> sp.csr_matrix:
         """The field at ``points``: node DOFs (``3 node + c``) to the points' displacement components.
 
         A point in a full cube follows the cube's polynomial; one in a condensed cube, its fine
@@ -370,7 +316,8 @@ class HighOrderCubes:
         cols = np.broadcast_to(self.dofs[emb.cube].reshape(nv, 1, nb, 3), vals.shape)
         inside = np.flatnonzero(np.isin(emb.cube, self.condensed_cubes))
         if len(inside):                                                      # the fine field instead
-            vals[inside] = self.condensation.point_map(pts[inside], emb.cube[inside]).reshape(-1, 3, nb, 3)
+            pmap = _known[1] if _known is not None else self.condensation.point_map(pts[inside], emb.cube[inside])
+            vals[inside] = pmap.reshape(-1, 3, nb, 3)
         rows = np.broadcast_to((3 * np.arange(nv)[:, None] + np.arange(3))[:, :, None, None], vals.shape)
         return sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * nv, self.n_dofs))
 
@@ -378,7 +325,8 @@ class HighOrderCubes:
     def W(self) -> sp.csr_matrix:
         """The field at the scene's source vertices, shape (3 n_vertices, 3 N) (:meth:`map_points`); computed once."""
         if self._W is None:
-            self._W = self.map_points(self.scene.rest_vertices)
+            known = self._vertex_map if self._condensed_matrices() is not None else None
+            self._W = self.map_points(self.scene.rest_vertices, _known=known)
         return self._W
 
 

@@ -186,27 +186,12 @@ class Condensation:
              else np.zeros((0, len(cols))))
         return Pt, Qt, X
 
-    def matrices(self) -> tuple[np.ndarray, np.ndarray]:
+    def matrices(self, points: np.ndarray | None = None, point_cube: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Stiffness ``P^T (K_tt - K_tf K_ff^-1 K_ft) P`` (N/m) and mass ``Phi^T M Phi`` (kg) of every
-        cube, each (n, 3 nb, 3 nb), DOF ``3 node + c``, in chunks of :data:`CHUNK` coarse DOFs."""
-        fs, n, nb = self.fine, self.fine.n, self.nb
-        t, f = self._t, self._f
-        Mtt, Mtf, Mff = fs.M[t][:, t], fs.M[t][:, f], fs.M[f][:, f]
-        Ktt, Ktf, P, Q, D = self._Ktt, self._Ktf, self._P, self._Q, self._D
-        Kst = np.zeros((n, 3 * nb, 3 * nb))
-        Mst = np.zeros((n, 3 * nb, 3 * nb))
-        for c0 in range(0, 3 * nb, CHUNK):                                   # chunks of local coarse DOFs
-            cols = np.arange(c0, min(c0 + CHUNK, 3 * nb))
-            Pt, Qt, X = self._columns(cols)
-            kc, mc = P.T @ (Ktt @ Pt), P.T @ (Mtt @ Pt)
-            if self._fac is not None:
-                kc = kc + P.T @ (Ktf @ X) + Q.T @ (D @ (Qt - X))
-                Zf = self._fac.solve(np.asarray(Mtf.T @ Pt + Mff @ X))       # K_ff^-1 (M Phi)_f
-                mc = mc + P.T @ (Mtf @ X - Ktf @ Zf) + Q.T @ (D @ Zf)
-            Kst[:, :, cols] = np.asarray(kc).reshape(n, 3 * nb, len(cols))
-            Mst[:, :, cols] = np.asarray(mc).reshape(n, 3 * nb, len(cols))
-        slot = fs.slot
-        return 0.5 * (Kst + Kst.transpose(0, 2, 1))[slot], 0.5 * (Mst + Mst.transpose(0, 2, 1))[slot]
+        cube, each (n, 3 nb, 3 nb), DOF ``3 node + c``, and the map of ``points`` in the same
+        solves (:meth:`point_map`; (0, 3, 3 nb) without points)."""
+        return self._sweep(points, point_cube, True)
 
     def point_map(self, points: np.ndarray, point_cube: np.ndarray) -> np.ndarray:
         """How points inside the condensed cubes move: their fine model's field there.
@@ -221,26 +206,46 @@ class Condensation:
         Returns
         -------
         ndarray, shape (k, 3, 3 nb)
-            Displacement of each point (3 components) per coarse DOF of its cube (one more solve).
+            Displacement of each point (3 components) per coarse DOF of its cube (the fine models
+            solved once more; :meth:`matrices` maps points in its own solves).
         """
-        nb = self.nb
-        w, rows = _points(self.coarse, self.cubes, self.fine, self.s, points, point_cube)
-        if not len(w):
-            return np.zeros((0, 3, 3 * nb))
+        return self._sweep(points, point_cube, False)[2]
+
+    def _sweep(self, points, point_cube, matrices: bool):
+        """The solves of :data:`CHUNK` coarse DOFs at a time: the cubes' matrices (if ``matrices``)
+        and the shape functions at the fine nodes around ``points``."""
+        fs, n, nb = self.fine, self.fine.n, self.nb
+        t, f = self._t, self._f
+        Mtt, Mtf, Mff = fs.M[t][:, t], fs.M[t][:, f], fs.M[f][:, f]
+        Ktt, Ktf, P, Q, D = self._Ktt, self._Ktf, self._P, self._Q, self._D
+        w, rows = _points(self.coarse, self.cubes, fs, self.s, points, point_cube)
         need = np.unique(rows)
         dof = (3 * need[:, None] + np.arange(3)).ravel()
-        m3 = 3 * len(self.fine.tied)
-        tpos, fpos = np.full(m3, -1, dtype=np.int64), np.full(m3, -1, dtype=np.int64)
-        tpos[self._t], fpos[self._f] = np.arange(len(self._t)), np.arange(len(self._f))
+        tpos, fpos = np.full(3 * len(fs.tied), -1, dtype=np.int64), np.full(3 * len(fs.tied), -1, dtype=np.int64)
+        tpos[t], fpos[f] = np.arange(len(t)), np.arange(len(f))
         t_at, f_at = tpos[dof], fpos[dof]
         phi = np.zeros((len(dof), 3 * nb))                                   # shape functions at those nodes
-        for c0 in range(0, 3 * nb, CHUNK):
+        Kst = np.zeros((n, 3 * nb, 3 * nb)) if matrices else None
+        Mst = np.zeros((n, 3 * nb, 3 * nb)) if matrices else None
+        for c0 in range(0, 3 * nb, CHUNK):                                   # chunks of local coarse DOFs
             cols = np.arange(c0, min(c0 + CHUNK, 3 * nb))
-            Pt, _, X = self._columns(cols)
+            Pt, Qt, X = self._columns(cols)
             phi[t_at >= 0, c0:c0 + len(cols)] = Pt[t_at[t_at >= 0]]
             phi[f_at >= 0, c0:c0 + len(cols)] = X[f_at[f_at >= 0]]
-        at = np.searchsorted(need, rows)                                     # (k, 8)
-        return np.einsum("kc,kcdj->kdj", w, phi.reshape(len(need), 3, 3 * nb)[at])
+            if not matrices:
+                continue
+            kc, mc = P.T @ (Ktt @ Pt), P.T @ (Mtt @ Pt)
+            if self._fac is not None:
+                kc = kc + P.T @ (Ktf @ X) + Q.T @ (D @ (Qt - X))
+                Zf = self._fac.solve(np.asarray(Mtf.T @ Pt + Mff @ X))       # K_ff^-1 (M Phi)_f
+                mc = mc + P.T @ (Mtf @ X - Ktf @ Zf) + Q.T @ (D @ Zf)
+            Kst[:, :, cols] = np.asarray(kc).reshape(n, 3 * nb, len(cols))
+            Mst[:, :, cols] = np.asarray(mc).reshape(n, 3 * nb, len(cols))
+        pmap = np.einsum("kc,kcdj->kdj", w, phi.reshape(len(need), 3, 3 * nb)[np.searchsorted(need, rows)])
+        if not matrices:
+            return None, None, pmap
+        slot = fs.slot
+        return 0.5 * (Kst + Kst.transpose(0, 2, 1))[slot], 0.5 * (Mst + Mst.transpose(0, 2, 1))[slot], pmap
 
 
 def _points(coarse: CubeModel, cubes: np.ndarray, fs: FineSystem, s: int, points, point_cube):

@@ -3,63 +3,103 @@
 Used for exact per-cube integrals over a surface (the enclosed volume per cube of
 :func:`sc_fem.lattice.moments.column_moments`): integrands that are polynomial on a piece are integrated
 exactly by its centroid and area. Orientation (winding) of every piece is that of its triangle.
+
+Each triangle is clipped to every cell it crosses (Sutherland-Hodgman, vectorized over all
+(polygon, slab) pairs at once, one axis after the other): a triangle clipped by the six planes of a
+cell is a convex polygon of at most :data:`MAX_VERTICES` vertices, fanned into triangles at the
+end. A flat triangle crossing ``k x k`` cells becomes about ``2 k^2`` pieces (splitting it three
+ways at each plane it crosses, plane after plane, made about 40 per cell of slivers).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+MAX_VERTICES = 9
+"""A triangle clipped by the 6 planes of a cell has at most 3 + 6 vertices."""
 
-def _split_once(tri: np.ndarray, plane: np.ndarray, axis: int) -> np.ndarray:
-    """Split each triangle (k, 3, 3), which the plane ``x[axis] = plane`` (k,) crosses strictly,
-    into three triangles (3k, 3, 3) of the same orientation."""
-    d = tri[:, :, axis] - plane[:, None]
-    above = d > 0
-    # the vertex alone on its side: the one whose side differs from the two others
-    alone = np.where(above[:, 0] == above[:, 1], 2, np.where(above[:, 0] == above[:, 2], 1, 0))
-    rows = np.arange(len(tri))[:, None]
-    order = (alone[:, None] + np.arange(3)[None]) % 3               # rotate: alone vertex first
-    t = tri[rows, order]
-    dd = d[rows, order]
-    a, b, c = t[:, 0], t[:, 1], t[:, 2]
-    p = a + (b - a) * (dd[:, 0] / (dd[:, 0] - dd[:, 1]))[:, None]
-    q = a + (c - a) * (dd[:, 0] / (dd[:, 0] - dd[:, 2]))[:, None]
-    return np.concatenate([np.stack([a, p, q], 1), np.stack([p, b, c], 1), np.stack([p, c, q], 1)])
+_TOL = 1e-9
+"""A vertex within this fraction of a cell of a plane counts as on it (round-off)."""
+
+
+def _clip(poly: np.ndarray, count: np.ndarray, axis: int, value: np.ndarray, above: bool) -> tuple[np.ndarray,
+                                                                                                       np.ndarray]:
+    """Clip convex polygons (n, MAX_VERTICES, 3) with ``count`` (n,) vertices to the half-space
+    ``x[axis] >= value`` (``above``) or ``<= value`` (n,), keeping the vertex order."""
+    n, m = poly.shape[:2]
+    d = poly[:, :, axis] - value[:, None]
+    if not above:
+        d = -d
+    slot = np.arange(m)[None, :]
+    valid = slot < count[:, None]
+    inside = (d >= 0) & valid
+    nxt = np.where(slot + 1 < count[:, None], slot + 1, 0)                 # the edge i -> i + 1, cyclic
+    rows = np.arange(n)[:, None]
+    dn = d[rows, nxt]
+    cross = valid & ((d >= 0) != (dn >= 0))
+    t = np.where(cross, d / np.where(cross, d - dn, 1.0), 0.0)
+    hit = poly + t[:, :, None] * (poly[rows, nxt] - poly)
+    # each edge emits its start vertex (if inside) then its crossing point (if any), in order
+    out = np.stack([poly, hit], axis=2).reshape(n, 2 * m, 3)
+    keep = np.stack([inside, cross], axis=2).reshape(n, 2 * m)
+    order = np.argsort(~keep, axis=1, kind="stable")[:, :m]                # the kept ones first, in order
+    return out[rows, order], np.minimum(keep.sum(axis=1), m)
+
+
+def _split_axis(poly: np.ndarray, count: np.ndarray, parent: np.ndarray, axis: int, origin: float,
+                pitch: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Split every polygon into its parts between consecutive grid planes along ``axis``."""
+    m = poly.shape[1]
+    x = (poly[:, :, axis] - origin) / pitch
+    valid = np.arange(m)[None, :] < count[:, None]
+    lo = np.where(valid, x, np.inf).min(axis=1)
+    hi = np.where(valid, x, -np.inf).max(axis=1)
+    k0 = np.floor(lo + _TOL * np.maximum(1.0, np.abs(lo))).astype(np.int64)
+    k1 = np.maximum(np.ceil(hi - _TOL * np.maximum(1.0, np.abs(hi))).astype(np.int64) - 1, k0)
+    span = k1 - k0 + 1
+    one = span == 1                                                          # already inside one slab
+    many = np.flatnonzero(~one)
+    rep = np.repeat(many, span[many])
+    first = np.cumsum(span[many]) - span[many]
+    k = k0[rep] + (np.arange(len(rep)) - np.repeat(first, span[many]))
+    p, c = _clip(poly[rep], count[rep], axis, origin + pitch * k, above=True)
+    p, c = _clip(p, c, axis, origin + pitch * (k + 1), above=False)
+    ok = c >= 3
+    return (np.concatenate([poly[one], p[ok]]), np.concatenate([count[one], c[ok]]),
+            np.concatenate([parent[one], parent[rep][ok]]))
 
 
 def cut_by_grid(tri: np.ndarray, origin: np.ndarray, pitch: float) -> tuple[np.ndarray, np.ndarray]:
     """Cut triangles (m, 3, 3) by all planes ``origin[a] + pitch * k`` of the three axes.
 
+    Parameters
+    ----------
+    tri : ndarray, shape (m, 3, 3)
+        Triangles, model units.
+    origin : ndarray, shape (3,)
+        The grid's lowest corner.
+    pitch : float
+        The grid's cell edge.
+
     Returns
     -------
     pieces : ndarray, shape (p, 3, 3)
-        Triangles, each inside one grid cell (up to round-off on the planes).
+        Triangles, each inside one grid cell (up to round-off on the planes), of the orientation
+        of the triangle they came from; the pieces of a triangle cover it exactly.
     parent : ndarray of int, shape (p,)
         Index of the input triangle each piece came from.
-
-    Notes
-    -----
-    Vectorized over triangles: each pass splits every triangle that still crosses a plane at the
-    lowest plane it crosses, so the number of passes per axis is the largest number of planes one
-    triangle crosses.
     """
-    pieces = np.asarray(tri, dtype=np.float64)
-    parent = np.arange(len(pieces))
+    tri = np.asarray(tri, dtype=np.float64).reshape(-1, 3, 3)
+    poly = np.zeros((len(tri), MAX_VERTICES, 3))
+    poly[:, :3] = tri
+    count = np.full(len(tri), 3, dtype=np.int64)
+    parent = np.arange(len(tri))
     for axis in range(3):
-        done_t, done_p = [], []
-        while len(pieces):
-            x = (pieces[:, :, axis] - origin[axis]) / pitch
-            lo, hi = x.min(axis=1), x.max(axis=1)
-            tol = 1e-9 * np.maximum(1.0, np.maximum(np.abs(lo), np.abs(hi)))
-            plane = np.floor(lo + tol) + 1.0              # the lowest plane above the piece's bottom
-            cross = plane < hi - tol
-            done_t.append(pieces[~cross])
-            done_p.append(parent[~cross])
-            if not cross.any():
-                break
-            split = _split_once(pieces[cross], origin[axis] + pitch * plane[cross], axis)
-            pieces = split
-            parent = np.tile(parent[cross], 3)
-        pieces = np.concatenate(done_t) if done_t else pieces
-        parent = np.concatenate(done_p) if done_p else parent
-    return pieces, parent
+        poly, count, parent = _split_axis(poly, count, parent, axis, float(origin[axis]), float(pitch))
+    # fan each polygon from its first vertex: triangles (0, j, j + 1), j = 1 .. count - 2
+    j = np.arange(1, MAX_VERTICES - 1)
+    use = j[None, :] < (count[:, None] - 1)
+    rows, col = np.nonzero(use)
+    jj = j[col]
+    pieces = np.stack([poly[rows, 0], poly[rows, jj], poly[rows, jj + 1]], axis=1)
+    return pieces, parent[rows]
