@@ -50,6 +50,7 @@ import numpy as np
 from _common import SHARED_MESHES, out_path, print_table, save_figure
 
 import sc_fem
+from sc_fem.fem.choice import choose_element
 from sc_fem.fem.highorder import DEGREES
 from sc_fem.fem.reference import solve_reference, uniform_field
 
@@ -120,6 +121,8 @@ def main(argv=None) -> int:
                     help="--thin: reuse the reference solutions cached in benchmarks/out/thin_ref/")
     ap.add_argument("--ref-max-dofs", type=int, default=450_000,
                     help="--thin: skip reference levels above this many DOFs (default 450,000)")
+    ap.add_argument("--higher-max-res", type=int, default=32,
+                    help="--thin: q2 / q3 / auto only up to this resolution (default 32: they reach 2 %% there)")
     args = ap.parse_args(argv)
     if args.thin:
         return thin_main(args)
@@ -486,6 +489,10 @@ def run_thin_sc_fem(geo: dict, r: int, element: str, ref: dict, topo: dict) -> d
     mass, 10 free-free frequencies, the best MAC of each reference mode among its 10 modes, the
     static case; seconds. Trilinear cubes are sampled at the reference's vertices through the
     trilinear embedding, higher-order cubes (``"q2"``, ``"q3"``) through their own field."""
+    if element == "auto":                         # what the default picks for this model (same grid)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            element = choose_element(sc_fem.Scene.from_mesh(geo["mesh"], resolution=r, fill="solid", **STEEL))[0]
     if element in DEGREES:
         return run_thin_higher_order(geo, r, element, ref, topo)
     t0 = time.perf_counter()
@@ -604,10 +611,10 @@ def two_plates_study(element: str, levels, reuse: bool, topo: dict) -> tuple[lis
             assert abs(model.pitch - pitch) < 1e-12 * pitch, (model.pitch, pitch)
             used = _topology_of(model, topo)
             n_parts = int(node_parts(model).max()) + 1
-            bm = sc_fem.modal(model, n_modes=10, element=element, keep_rigid=True)
+            bm = sc_fem.modal(sc_fem.Scene.from_model(model, mesh), n_modes=10, element=element, keep_rigid=True)
             n_rigid = int(bm.rigid.sum())
             f_two = float(bm.frequencies[~bm.rigid][0])
-            b1 = sc_fem.modal(single, n_modes=10, element=element)
+            b1 = sc_fem.modal(sc_fem.Scene.from_model(single, one), n_modes=10, element=element)
             f_one = float(b1.frequencies[0])
             layers = int(model.dims[2])
             weld = model.info.get("weld")
@@ -702,6 +709,8 @@ def thin_main(args) -> int:
         for element in elements:
             errs[element] = []
             for r in resolutions:
+                if (element in DEGREES or element == "auto") and r > args.higher_max_res:
+                    continue
                 res = run_thin_sc_fem(geo, r, element, ref, topo)
                 used.add(res["topology"])
                 fe = np.abs(res["freqs"] - ref["freqs"]) / ref["freqs"]

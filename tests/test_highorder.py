@@ -349,3 +349,32 @@ def test_two_plates_a_third_of_a_cube_apart_stay_two_free_plates_with_condensed_
     f = np.asarray(b.frequencies)[~np.asarray(b.rigid)]
     np.testing.assert_allclose(f[0:8:2], alone, rtol=0.01)
     np.testing.assert_allclose(f[1:8:2], alone, rtol=0.01)
+
+
+def test_auto_takes_multiscale_cubes_for_thin_walled_models_only_and_says_why():
+    """``element="auto"``: q3 for thin-walled models (walls under 1/40 of the model, at any grid:
+    the choice does not flip with the resolution), q1i for compact ones, for lumped mass and without
+    a surface; a trilinear analysis of walls thinner than a third of a cube warns."""
+    from sc_fem.errors import ScFemWarning
+    from sc_fem.fem.choice import choose_element, trilinear_note
+
+    for r in (32, 16, 8):
+        thin = Scene.from_mesh(shapes.channel(length=0.4), resolution=r, fill="solid", **STEEL)
+        element, why = choose_element(thin, "auto")
+        assert element == "q3" and "thin-walled" in why, why
+    # (thin is the 8-cube channel from here on: walls of 5 mm in cubes of 50 mm)
+    compact = Scene.from_mesh("builtin:beam", resolution=8)
+    assert choose_element(compact, "auto")[0] == "q1i"
+    assert choose_element(thin, "auto", lumped=True)[0] == "q1i"
+    assert choose_element(Scene.from_model(thin.model), "auto")[0] == "q1i"
+    assert choose_element(thin, "Q2") == ("q2", "requested")
+    with pytest.raises(InputError, match="element"):
+        choose_element(thin, "q9")
+    assert trilinear_note(compact, "q1i") is None and trilinear_note(thin, "q3") is None
+    assert "thinner than a third of a cube" in trilinear_note(thin, "q1i")
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        b = sc_fem.modal(thin, n_modes=2)
+    assert b.element == "q1i" and any(issubclass(w.category, ScFemWarning) for w in seen)
+    b = sc_fem.modal(thin, n_modes=2, element="auto")
+    assert b.element == "q3" and "thin-walled" in b.eigen["element_reason"]

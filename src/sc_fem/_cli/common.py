@@ -9,6 +9,7 @@ import sys
 
 from ..errors import InputError
 from ..fem.elements import DEFAULT_ELEMENT, ELEMENTS
+from ..fem.choice import AUTO, THIN_WALLS
 from ..fem.highorder import DEGREES
 from ..lattice.boundary import read_vertex_file
 from ..lattice.options import VoxelOptions
@@ -154,8 +155,13 @@ def impulse_arg(values) -> tuple[int, tuple] | None:
 def add_element_arg(p: argparse.ArgumentParser, *, higher_order: bool = False) -> None:
     """``--element``: the cube elements of :data:`sc_fem.fem.elements.ELEMENTS`, and with
     ``higher_order`` the degree-2 and 3 cubes of :mod:`sc_fem.fem.highorder` (linear analyses)."""
-    choices = ELEMENTS + (tuple(DEGREES) if higher_order else ())
-    extra = ("; q2, q3: degree-2 / 3 fields in every cube, for thin-walled members (slower, far more "
-             "accurate in torsion)") if higher_order else ""
+    if not higher_order:
+        p.add_argument("--element", choices=ELEMENTS, default=DEFAULT_ELEMENT,
+                       help=f"element type: {', '.join(ELEMENTS)} (default {DEFAULT_ELEMENT})")
+        return
+    choices = (AUTO, *ELEMENTS, *DEGREES)
     p.add_argument("--element", choices=choices, default=DEFAULT_ELEMENT,
-                   help=f"element type: {', '.join(choices)} (default {DEFAULT_ELEMENT}){extra}")
+                   help=f"element type: {', '.join(choices)} (default {DEFAULT_ELEMENT}: trilinear, fast; q3: degree-3 "
+                        "cubes, partly filled ones condensed from a finer model of their walls -- thin-walled members "
+                        "to a few %%, 10-50x slower; q2: degree 2; auto: q3 for a thin-walled model, walls thinner "
+                        f"than 1/{1 / THIN_WALLS:.0f} of its size, {DEFAULT_ELEMENT} otherwise)")

@@ -206,6 +206,9 @@ class EigenSolver:
         Bytes the factorization may use (``method="auto"``); default half the available memory.
     seed : int
         Seed of the random start vectors.
+    lattice : bool
+        ``K`` and ``M`` are a trilinear lattice's (``"auto"`` may take LOBPCG + the lattice
+        multigrid); False (higher-order cubes): ``"auto"`` takes shift-invert whenever it fits.
 
     Attributes
     ----------
@@ -221,7 +224,7 @@ class EigenSolver:
     def __init__(self, K: sp.spmatrix, M: sp.spmatrix, *, method: str = "auto", backend: str = "auto",
                  sigma: float | None = None, near_null: np.ndarray | None = None,
                  aggregates: np.ndarray | None = None, tol: float = 0.0, lobpcg_tol: float = 1e-3,
-                 maxiter: int = 400, max_memory: float | None = None, seed: int = 0) -> None:
+                 maxiter: int = 400, max_memory: float | None = None, seed: int = 0, lattice: bool = True) -> None:
         if method not in METHODS:
             raise InputError(f"method must be one of {list(METHODS)}, got {method!r}")
         if not (sp.issparse(K) and sp.issparse(M)) or K.shape != M.shape or K.shape[0] != K.shape[1]:
@@ -238,7 +241,7 @@ class EigenSolver:
         self._auto, self._requested_backend = False, backend
         self.near_null, self.aggregates = near_null, aggregates
         self.tol, self.lobpcg_tol, self.maxiter, self.max_memory, self.seed = tol, lobpcg_tol, maxiter, max_memory, seed
-        self.n_setups, self._setup_seconds, self._info = 0, 0.0, {}
+        self.n_setups, self._setup_seconds, self._info, self.lattice = 0, 0.0, {}, bool(lattice)
         self._op = None                       # OPinv (shift-invert) or the V-cycle (LOBPCG)
         self._shifted = self._analysis = None  # K - sigma M and its fill (FillAnalysis), from _setup to _build
 
@@ -246,7 +249,7 @@ class EigenSolver:
         self._shifted, self.reason = shifted(self.K, self.M, self.sigma), "requested"
         if self.method == "auto":     # shift-invert predicted from the fill of K - sigma M (CHOLMOD + numba)
             self._analysis = a = fill_analysis(self._shifted, self.backend)
-            self.method, self.reason = choose_method(self.n, self.K.nnz, k, self.max_memory, a)
+            self.method, self.reason = choose_method(self.n, self.K.nnz, k, self.max_memory, a, self.lattice)
             self._auto, self._setup_seconds = True, a.seconds if a is not None else 0.0
             self._info["predicted_seconds"] = {m: predicted_seconds(m, self.n, k, a) for m in METHODS[1:]}
         self._build()

@@ -41,7 +41,7 @@ from ..lattice.cubes import CubeModel
 from ..lattice.grid import estimate_bytes
 from ..lattice.options import DEFAULT_SUBSAMPLES
 from ..lattice.topology import HEX_CORNERS
-from ..lattice.walls import wall_thickness
+from ..lattice.walls import thinnest_walls
 from .finemodel import FineSystem, fine_system
 from .lagrange import shape_functions
 from .linsolve import factorize
@@ -71,9 +71,6 @@ FINE_SPACING = 0.25
 """Surface samples of the fine model this fraction of a fine cube apart (the voxelizer's default
 is 1/8: a closed part's cubes and moments come from its surface integrals and do not change)."""
 
-THIN_PERCENTILE = 10.0
-"""The walls' thickness is this percentile (weighted by surface area) of the cubes' ``2 V / A``."""
-
 
 
 def choose_refine(model: CubeModel, vertices: np.ndarray, faces: np.ndarray,
@@ -96,18 +93,17 @@ def choose_refine(model: CubeModel, vertices: np.ndarray, faces: np.ndarray,
     -------
     refine : int
     thickness : float
-        The walls' thickness it was chosen for (:func:`wall_thickness`, the area-weighted
-        :data:`THIN_PERCENTILE` percentile), model units; ``inf`` without partly filled cubes.
+        The walls' thickness it was chosen for (:func:`sc_fem.lattice.walls.thinnest_walls`), model
+        units; ``inf`` without partly filled cubes.
     """
-    t, a = wall_thickness(model, vertices, faces)
-    if not len(t):
-        return 2, float("inf")
-    order = np.argsort(t)
-    cum = np.cumsum(a[order]) / a.sum()
-    wall = float(t[order][min(np.searchsorted(cum, THIN_PERCENTILE / 100.0), len(t) - 1)])
+    wall = thinnest_walls(model, vertices, faces)
+    if not np.isfinite(wall):
+        return 2, wall
     s = int(np.clip(np.ceil(FINE_PER_WALL * model.pitch / max(wall, 1e-12 * model.pitch)), 2, MAX_REFINE))
     filled = float(np.sum(model.fraction))                     # in cubes
-    surface = float(a.sum()) / model.pitch**2                  # in cube faces
+    tri = np.asarray(vertices, dtype=float)[np.asarray(faces, dtype=np.int64)]
+    surface = 0.5 * float(np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()) \
+        / model.pitch**2                                       # in cube faces
     budget = 0.5 * available_memory() if max_memory is None else float(max_memory)
     subsamples = int(model.info.get("subsamples", DEFAULT_SUBSAMPLES))
 

@@ -18,6 +18,7 @@ is held at zero displacement and counted in :attr:`StaticResult.n_floating_nodes
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -29,9 +30,10 @@ from .._validate import as_float_array
 from .assemble import Assembler
 from ..lattice.boundary import fixed_dofs
 from .rigid import rigid_block
-from .elements import DEFAULT_ELEMENT, check_element
+from .elements import DEFAULT_ELEMENT
+from .choice import choose_element, trilinear_note
 from .highorder import DEGREES, HighOrderAssembler, HighOrderCubes
-from ..errors import BoundaryConditionError, InputError, SolverError
+from ..errors import BoundaryConditionError, InputError, ScFemWarning, SolverError
 from ..lattice.cubes import CubeModel
 from ..scene import Scene
 from . import options as _options
@@ -134,10 +136,11 @@ def solve_static(scene: Scene, *, element: str = DEFAULT_ELEMENT, forces: ArrayL
         Lattice, fixed nodes and source mesh (or points of interest) together
         (:meth:`~sc_fem.Scene.from_mesh`, :meth:`~sc_fem.Scene.from_model`);
         :func:`sc_fem.solve_static` builds one from a CubeModel or a mesh.
-    element : {"q1i", "q1", "q1sri", "q2", "q3"}
-        Element type (default ``"q1i"``); ``"q2"`` / ``"q3"``: degree-2 / 3 cubes
-        (:mod:`sc_fem.fem.highorder`, need the source mesh), loaded consistently (gravity through
-        their mass, point forces through their field).
+    element : {"auto", "q1i", "q1", "q1sri", "q2", "q3"}
+        Element type (default ``"q1i"``); ``"auto"``: multiscale ``"q3"`` cubes for a thin-walled model,
+        ``"q1i"`` otherwise (:func:`sc_fem.fem.highorder.choose_element`; the result's ``info["element"]``
+        says why); ``"q2"`` / ``"q3"``: degree-2 / 3 cubes (:mod:`sc_fem.fem.highorder`, need the source
+        mesh), loaded consistently (gravity through their mass, point forces through their field).
     forces : array_like, shape (m, 3), optional
         Forces on the lattice nodes, N.
     gravity : array_like, shape (3,), optional
@@ -175,8 +178,10 @@ def solve_static(scene: Scene, *, element: str = DEFAULT_ELEMENT, forces: ArrayL
         opts = replace(opts, backend=backend)
     report_points = scene.mesh is not None
     model = scene.model
-    higher = isinstance(element, str) and element.lower() in DEGREES
-    element = element.lower() if higher else check_element(element)
+    element, why = choose_element(scene, element)
+    higher = element in DEGREES
+    if (note := trilinear_note(scene, element)) is not None:
+        warnings.warn(note, ScFemWarning, stacklevel=3)
     m = model.n_nodes
     W = scene.W if report_points else None
 
@@ -244,7 +249,7 @@ def solve_static(scene: Scene, *, element: str = DEFAULT_ELEMENT, forces: ArrayL
                 (lambda: lattice_amg_data(model, asm.free_dofs, labels)))    # built only if CG + AMG is chosen
     linear = _system_solver(K, opts, higher, amg_data)
     x = linear.solve(b)
-    how, st, info = linear.kind, linear.stats, {"reason": linear.reason}
+    how, st, info = linear.kind, linear.stats, {"reason": linear.reason, "element": why}
     if linear.last:                                    # CG + AMG ran (and maybe failed)
         cg = linear.last
         info.update(iterations=cg["iterations"], tol=opts.tol, levels=cg["levels"], kernel=cg["kernel"],

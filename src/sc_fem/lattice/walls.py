@@ -55,3 +55,33 @@ def wall_thickness(model: CubeModel, vertices: np.ndarray, faces: np.ndarray) ->
     own = area[partial]
     sel = (own > 0) & (a_blk > 0)
     return 2.0 * v_blk[sel] / a_blk[sel], own[sel]
+
+
+THIN_PERCENTILE = 10.0
+"""The walls' thickness is this percentile (weighted by surface area) of the cubes' ``2 V / A``."""
+
+
+def thinnest_walls(model: CubeModel, vertices: np.ndarray, faces: np.ndarray) -> float:
+    """The thickness of a model's thin walls: the area-weighted :data:`THIN_PERCENTILE` percentile of
+    :func:`wall_thickness` (model units; ``inf`` without partly filled cubes).
+
+    Parameters
+    ----------
+    model : CubeModel
+        The lattice.
+    vertices : ndarray, shape (v, 3)
+        The source surface's vertices, model units.
+    faces : ndarray of int, shape (f, 3)
+        Its triangles.
+
+    Returns
+    -------
+    float
+    """
+    t, a = wall_thickness(model, vertices, faces)
+    if not len(t):
+        return float("inf")
+    order = np.argsort(t)
+    cum = np.cumsum(a[order]) / a.sum()
+    return float(t[order][min(np.searchsorted(cum, THIN_PERCENTILE / 100.0), len(t) - 1)])
+

@@ -60,8 +60,12 @@ def modal(scene: Scene, *, n_modes: int | None = None, max_frequency: float | No
     max_modes : int
         Upper limit on the elastic modes returned (``eigen["truncated"]`` says when it cut the
         ``max_frequency`` or ``n_modes`` request short).
-    element : {"q1i", "q1", "q1sri", "q2", "q3"}
-        Element type.
+    element : {"auto", "q1i", "q1", "q1sri", "q2", "q3"}
+        Element type (default ``"q1i"``: trilinear, fast; warns when the walls are thinner than a
+        third of a cube); ``"q3"``: degree-3 cubes, partly filled ones condensed from a finer model
+        (multiscale: thin-walled members to a few %); ``"auto"``: ``"q3"`` for a thin-walled model,
+        ``"q1i"`` otherwise (:func:`sc_fem.fem.highorder.choose_element`; ``eigen["element_reason"]``
+        says why).
     lumped : bool
         Lumped instead of consistent mass.
     damping : float, array_like (k,) or Damping, optional

@@ -15,6 +15,7 @@ from .._validate import positive_int, positive_scalar
 from ..errors import InputError
 from ..fem.eigen import EigenOptions
 from ..fem.elements import DEFAULT_ELEMENT, check_element
+from ..fem.choice import AUTO
 from ..fem.highorder import DEGREES
 
 DEFAULT_DAMPING_RATIO = 0.01
@@ -163,7 +164,7 @@ class ModalRequest:
     progress: bool = False
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.element, str) and self.element.lower() in DEGREES):
+        if not (isinstance(self.element, str) and self.element.lower() in (AUTO, *DEGREES)):
             object.__setattr__(self, "element", check_element(self.element))
         else:
             object.__setattr__(self, "element", self.element.lower())

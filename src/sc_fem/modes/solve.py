@@ -8,15 +8,17 @@ stiffest element) and removed unless ``keep_rigid=True`` (then flagged in ``Moda
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from .._log import say
-from ..errors import InputError
+from ..errors import InputError, ScFemWarning
 from ..fem.assemble import Assembler
 from ..fem.eigen import EigenSolver
+from ..fem.choice import choose_element, trilinear_note
 from ..fem.highorder import DEGREES, HighOrderAssembler, HighOrderCubes
 from ..fem.rigid import rigid_body_modes
 from ..fem.multigrid import lattice_aggregates
@@ -69,11 +71,14 @@ def solve_scene(scene, req: ModalRequest) -> Solved:
     n_modes, max_frequency, max_modes, progress = req.n_modes, req.max_frequency, req.max_modes, req.progress
     t = {}
     t0 = time.perf_counter()
-    if req.element in DEGREES:
-        asm = HighOrderAssembler(HighOrderCubes(scene, req.element))
+    element, why = choose_element(scene, req.element, lumped=req.lumped)
+    if (note := trilinear_note(scene, element)) is not None:
+        warnings.warn(note, ScFemWarning, stacklevel=4)
+    if element in DEGREES:
+        asm = HighOrderAssembler(HighOrderCubes(scene, element))
         nodes_m = asm.nodes_m
     else:
-        asm = Assembler(model, req.element, fixed_dofs=scene.fixed_dofs)
+        asm = Assembler(model, element, fixed_dofs=scene.fixed_dofs)
         nodes_m = model.nodes_m
     K = asm.stiffness()
     M = asm.mass(lumped=req.lumped)
@@ -88,9 +93,10 @@ def solve_scene(scene, req: ModalRequest) -> Solved:
     k_cap = min(n - 1, max_modes + n_rigid_expected + 6)
     k = n_rigid_expected + (want if want is not None else 12)
     t0 = time.perf_counter()
-    aggregates = None if req.element in DEGREES else lattice_aggregates(model, labels, asm.free_dofs)
+    aggregates = None if element in DEGREES else lattice_aggregates(model, labels, asm.free_dofs)
     solver = EigenSolver(K, M, method=req.eigen.solver, backend=req.eigen.backend, aggregates=aggregates,
-                         near_null=rigid_body_modes(nodes_m, asm.free_dofs), max_memory=req.eigen.max_memory)
+                         near_null=rigid_body_modes(nodes_m, asm.free_dofs), max_memory=req.eigen.max_memory,
+                         lattice=element not in DEGREES)
     scale = solver.lambda_scale
     passes = 0
     while True:                                                   # loop: grow k until enough modes
@@ -121,7 +127,7 @@ def solve_scene(scene, req: ModalRequest) -> Solved:
         first = np.sqrt(max(float(lam[~rigid][0]), 0.0)) / (2 * np.pi) if np.any(~rigid) else float("nan")
         raise InputError(f"no elastic mode below max_frequency={max_frequency:g} Hz: the first one is at "
                          f"{first:.4g} Hz; raise max_frequency or give n_modes")
-    info = {"method": eig.method, "backend": eig.backend, "reason": eig.reason, "sigma": eig.sigma,
+    info = {"element": element, "element_reason": why, "method": eig.method, "backend": eig.backend, "reason": eig.reason, "sigma": eig.sigma,
             "seconds": eig.seconds, "k_computed": int(len(lam)), "passes": passes, "setups": solver.n_setups,
             "n_rigid_expected": n_rigid_expected, "n_rigid_found": int(rigid.sum()), "lambda_scale": scale,
             **eig.info}
@@ -160,7 +166,7 @@ def finish(s: Solved, req: ModalRequest, resolution_table: list | None = None) -
         frequencies=omegas / (2.0 * np.pi), modes=vertex_modes, vertices=scene.rest_vertices, faces=scene.faces,
         damping=zeta, damping_spec=spec, rigid=s.rigid, residuals=s.res, n_rigid_removed=s.n_removed,
         scale=float(model.scale), pitch=float(model.pitch),
-        resolution=int(model.info.get("resolution", int(model.dims.max()))), element=req.element,
+        resolution=int(model.info.get("resolution", int(model.dims.max()))), element=s.info["element"],
         material=scene.material_record(), fix_record=scene.fix_record(),
         source=scene.source, source_sha256=scene.sha256, n_cubes=model.n_cubes,
         n_dofs=s.asm.cubes.n_dofs if isinstance(s.asm, HighOrderAssembler) else model.n_dofs, eigen=s.info,
