@@ -15,6 +15,13 @@ how close would r16 / r32 come to the conforming reference?
 Reproduce:
 
     python benchmarks/thin_multiscale.py i_beam 16 1 2 3      # case, resolution, degrees
+
+Measured (I-section, r16, 10 lowest free-free frequencies against the P2 reference, mean / max):
+the fine model (1,664 27-node hexahedra, 55k DOFs) 0.26 / 0.91 %; tied p1 40.6 / 71.4 %, p2
+10.3 / 30.1 %, p3 2.55 / 6.10 %; condensed p1 41.2 / 72.8 %, p2 10.7 / 30.8 %, p3 2.81 / 6.45 %.
+Only degree 3 on the shared faces lets the walls warp as they do; the static condensation costs
+0.3 points over keeping the interiors' own inertia. This led to ``sc_fem.fem.multiscale``, which
+makes the fine model from the mesh (voxelized finer) instead of an exact box meshing.
 """
 
 from __future__ import annotations
