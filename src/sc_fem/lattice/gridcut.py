@@ -40,10 +40,13 @@ def _clip(poly: np.ndarray, count: np.ndarray, axis: int, value: np.ndarray, abo
     t = np.where(cross, d / np.where(cross, d - dn, 1.0), 0.0)
     hit = poly + t[:, :, None] * (poly[rows, nxt] - poly)
     # each edge emits its start vertex (if inside) then its crossing point (if any), in order
-    out = np.stack([poly, hit], axis=2).reshape(n, 2 * m, 3)
     keep = np.stack([inside, cross], axis=2).reshape(n, 2 * m)
-    order = np.argsort(~keep, axis=1, kind="stable")[:, :m]                # the kept ones first, in order
-    return out[rows, order], np.minimum(keep.sum(axis=1), m)
+    slot_out = np.cumsum(keep, axis=1) - 1                                  # the kept ones first, in order
+    r, c = np.nonzero(keep & (slot_out < m))
+    out = np.zeros((n, m, 3))
+    src = np.stack([poly, hit], axis=2).reshape(n, 2 * m, 3)
+    out[r, slot_out[r, c]] = src[r, c]
+    return out, np.minimum(keep.sum(axis=1), m)
 
 
 def _split_axis(poly: np.ndarray, count: np.ndarray, parent: np.ndarray, axis: int, origin: float,
@@ -62,8 +65,11 @@ def _split_axis(poly: np.ndarray, count: np.ndarray, parent: np.ndarray, axis: i
     rep = np.repeat(many, span[many])
     first = np.cumsum(span[many]) - span[many]
     k = k0[rep] + (np.arange(len(rep)) - np.repeat(first, span[many]))
-    p, c = _clip(poly[rep], count[rep], axis, origin + pitch * k, above=True)
-    p, c = _clip(p, c, axis, origin + pitch * (k + 1), above=False)
+    p, c = poly[rep], count[rep]
+    low = np.flatnonzero(k > k0[rep])                                        # the first slab has no lower plane
+    p[low], c[low] = _clip(p[low], c[low], axis, origin + pitch * k[low], above=True)
+    up = np.flatnonzero(k < k1[rep])                                         # nor the last an upper one
+    p[up], c[up] = _clip(p[up], c[up], axis, origin + pitch * (k[up] + 1), above=False)
     ok = c >= 3
     return (np.concatenate([poly[one], p[ok]]), np.concatenate([count[one], c[ok]]),
             np.concatenate([parent[one], parent[rep][ok]]))
@@ -90,16 +96,24 @@ def cut_by_grid(tri: np.ndarray, origin: np.ndarray, pitch: float) -> tuple[np.n
         Index of the input triangle each piece came from.
     """
     tri = np.asarray(tri, dtype=np.float64).reshape(-1, 3, 3)
-    poly = np.zeros((len(tri), MAX_VERTICES, 3))
-    poly[:, :3] = tri
-    count = np.full(len(tri), 3, dtype=np.int64)
-    parent = np.arange(len(tri))
+    origin = np.asarray(origin, dtype=np.float64)
+    x = (tri - origin) / pitch
+    lo, hi = x.min(axis=1), x.max(axis=1)
+    inside = np.all(np.floor(lo + _TOL * np.maximum(1.0, np.abs(lo))) + 1.0 >= hi - _TOL * np.maximum(1.0, np.abs(hi)),
+                    axis=1)                                                  # already in one cell: as it is
+    cut = np.flatnonzero(~inside)
+    poly = np.zeros((len(cut), 5, 3))                                        # 3 vertices, 2 more per axis
+    poly[:, :3] = tri[cut]
+    count = np.full(len(cut), 3, dtype=np.int64)
+    parent = cut
     for axis in range(3):
         poly, count, parent = _split_axis(poly, count, parent, axis, float(origin[axis]), float(pitch))
+        if axis < 2:                                                         # room for the next axis' 2 vertices
+            poly = np.concatenate([poly, np.zeros((len(poly), 2, 3))], axis=1)
     # fan each polygon from its first vertex: triangles (0, j, j + 1), j = 1 .. count - 2
-    j = np.arange(1, MAX_VERTICES - 1)
-    use = j[None, :] < (count[:, None] - 1)
-    rows, col = np.nonzero(use)
+    j = np.arange(1, poly.shape[1] - 1)
+    rows, col = np.nonzero(j[None, :] < (count[:, None] - 1))
     jj = j[col]
     pieces = np.stack([poly[rows, 0], poly[rows, jj], poly[rows, jj + 1]], axis=1)
-    return pieces, parent[rows]
+    keep = np.flatnonzero(inside)
+    return np.concatenate([tri[keep], pieces]), np.concatenate([keep, parent[rows]])
