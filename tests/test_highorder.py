@@ -166,6 +166,23 @@ def test_the_condensation_equals_a_loop_over_the_cubes_with_dense_algebra(channe
     assert fs.n < len(part)                       # the channel's inner cubes share their content
 
 
+def test_cubes_of_equal_content_condensed_once_equal_each_condensed_alone(channel_scene, monkeypatch):
+    """The content cache (a hash of each cube's fine cubes, moments, tied nodes and material) changes
+    nothing: every cube condensed on its own gives the same matrices."""
+    from sc_fem.fem import finemodel
+    from sc_fem.fem.multiscale import Condensation
+
+    model = channel_scene.model
+    part = np.flatnonzero(model.fraction < 1)
+    fine = HighOrderCubes(channel_scene, "q2", refine=3)._fine_model()
+    shared = Condensation(model, part, fine, 3, 2)
+    monkeypatch.setattr(finemodel, "_same_content", lambda coarse, cubes, *a: np.arange(len(cubes)))
+    alone = Condensation(model, part, fine, 3, 2)
+    assert shared.fine.n < alone.fine.n == len(part)
+    for a, b in zip(shared.matrices()[:2], alone.matrices()[:2]):
+        np.testing.assert_allclose(a, b, rtol=1e-7, atol=1e-9 * np.abs(b).max())
+
+
 @pytest.mark.parametrize("partial", ["moments", "multiscale"])
 def test_the_vertex_map_reproduces_rigid_motions_and_the_fields_its_cubes_hold(channel_scene, partial):
     """Vertices follow the cubes' field: the polynomial (every linear field exactly), or in a

@@ -139,16 +139,18 @@ def analyze_fill(A: sp.spmatrix, backend: str = "auto") -> FillAnalysis | None:
                         seconds=time.perf_counter() - t0, factor=factor)
 
 
-FILL_SPEED_MODEL = {"flops_per_second": 2.46e9, "seconds_per_entry": 9.7e-9, "seconds_per_dof": 1.6e-7}
+FILL_SPEED_MODEL = {"flops_per_second": 21e9, "seconds_per_entry": 3.4e-9, "seconds_per_dof": 2.0e-7}
 """Shift-invert's seconds from the fill (:func:`shift_invert_seconds`): the analysis itself,
 ``flops / flops_per_second`` (CHOLMOD's numeric factorization) and ``(seconds_per_entry * nnz(L) +
 seconds_per_dof * n) * ncv`` (ARPACK: solves with ``L`` and its own work, growing with its ``ncv =
-max(2k + 1, k + 20)`` Lanczos vectors). Fitted (least squares on the log of taken / predicted) to
-the 10 shapes of ``python benchmarks/auto_choice.py --quick`` (16 pairs; compact, thin-walled and
-many-part, 5,292-76,035 DOFs; CHOLMOD on the reference BLAS, 2 shared cores at load 1.1-1.8,
-2026-11-25): all within 0.83-1.13x. See ``docs/performance.md`` for the shapes it was not fitted to."""
+max(2k + 1, k + 20)`` Lanczos vectors). CHOLMOD on Debian's serial OpenBLAS (``.ci/install-cholmod.sh``;
+the reference BLAS was 5-9x slower): ``flops_per_second`` from the factorization of a 56,112-DOF bunny
+(73.4 Gflop of ``sum c_j^2`` in 3.39 s), the two solve terms fitted (non-negative least squares,
+relative) to the 10 shapes of ``python benchmarks/auto_choice.py --quick`` (2026-11-28, load 0.5-1.5):
+taken / predicted 0.85-1.2 on 8 of 10, 1.47 on the bridge and 1.83 on the armchair. See
+``docs/performance.md`` for the shapes it was not fitted to."""
 
-LOBPCG_FILL_MODEL = {"c": 0.43, "q0": 13.0, "beta": 1.0, "cap": 8.0}
+LOBPCG_FILL_MODEL = {"c": 0.25, "q0": 13.0, "beta": 1.0, "cap": 8.0}
 """LOBPCG + AMG's seconds when the fill is known (:func:`lobpcg_factor`): ``(c * (n / 7776) ** 0.98
 * factor + overhead) * k / 6``, the power law of :data:`sc_fem.fem.options.SPEED_MODEL` for a
 compact solid times ``factor = min((q0 / q) ** beta, cap)`` where ``q = nnz(L) / n^(4/3)`` is below
@@ -157,7 +159,8 @@ preconditions worse, and such models fill little. ``q0, beta`` fitted to the ite
 load-independent): compact solids q = 11-19, 23 iterations (the bunny at r40 34); chair and
 armchair q = 6.4-9.1, 45; plate 6.0, 45; I-beam 5.8, 69; table 5.4, 34; truss bridge 3.6-3.8,
 85-139; the toy truck (many parts) 10.9, 45. ``c`` fitted to the times of the ``--quick`` run
-(numba's products: without numba there is no fill analysis)."""
+(numba's products: without numba there is no fill analysis): 0.43 on 2026-11-25, 0.25 on 2026-11-28
+(the geometric mean of taken / predicted was 0.58, spread 0.31-0.86, on a quieter machine)."""
 
 
 def shift_invert_seconds(analysis: FillAnalysis, k: int) -> float:
