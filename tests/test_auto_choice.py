@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import scipy.sparse as sp
+import scipy.sparse.linalg  # noqa: F401 - sp.linalg.norm
 
 from sc_fem.fem import fill, options
 from sc_fem.fem.assemble import Assembler
@@ -66,13 +67,15 @@ def test_a_compact_solid_predicts_more_shift_invert_time_per_dof_than_a_plate():
 
 @needs_fill
 def test_the_fill_agrees_with_the_real_factor_and_is_reused():
-    """nnz(L) from the analysis is within 10 % of CHOLMOD's factor (which pads supernodes with
-    zeros), and the factorization reuses the analysis: same solution, no second ordering."""
+    """nnz(L) from the analysis is within 10 % of CHOLMOD's factor in the analysis's order (which
+    pads supernodes with zeros), and the factorization reuses the order: the same solution as
+    CHOLMOD's own ordering, no second ordering."""
     A = _shifted((12, 10, 8)).tocsc()
     a = fill.analyze_fill(A)
     fac = factorize(A, "cholmod")
-    real = fac._f.L().nnz
+    real = factorize(A, "cholmod", analysis=a)._f.L().nnz
     assert 0.9 * real <= a.nnz_l <= real
+    assert a.nnz_l <= 1.05 * fac._f.L().nnz                   # the node order fills no more than CHOLMOD's
     est = options.factor_memory_estimate(A.shape[0], A.nnz, a)
     assert 0.9 * 8 * real <= est <= 1.5 * 8 * real
     import sksparse.cholmod as cholmod
@@ -81,12 +84,64 @@ def test_the_fill_agrees_with_the_real_factor_and_is_reused():
     calls = []
     real_cholesky = cholmod.cholesky
     try:
-        cholmod.cholesky = lambda *x, **y: calls.append(1) or real_cholesky(*x, **y)
+        cholmod.cholesky = lambda *x, **y: calls.append(y) or real_cholesky(*x, **y)
         reused = factorize(A, "cholmod", analysis=a)
     finally:
         cholmod.cholesky = real_cholesky
-    assert not calls
-    np.testing.assert_allclose(reused.solve(b), fac.solve(b), rtol=1e-10, atol=0)
+    assert calls == [{"ordering_method": "natural"}]          # factorized in the analysis's order
+    x = reused.solve(b)                        # another order rounds differently (cond(A) ~ 1e8)
+    scale = sp.linalg.norm(A) * np.linalg.norm(x)
+    assert np.linalg.norm(A @ x - b) <= 1e-13 * scale
+    np.testing.assert_allclose(x, fac.solve(b), rtol=1e-7, atol=0)
+    np.testing.assert_allclose(reused.solve(np.column_stack([b, 2 * b])), np.column_stack([x, 2 * x]), rtol=1e-12)
+
+
+def _partly_fixed(shape=(6, 4, 3)) -> sp.csr_matrix:
+    """``K - sigma M`` of a box with some nodes fixed in x alone (supervariables of 2 and 3 rows)
+    and one entry of a block dropped (a row that no longer matches its node's others)."""
+    model = CubeModel.box(shape, 0.01, youngs=1e7, poisson=0.3, density=1000.0)
+    fixed = np.flatnonzero(model.nodes_m[:, 0] < 1e-9) * 3           # x only
+    asm = Assembler(model, "q1i", fixed_dofs=fixed)
+    K, M = asm.stiffness(), asm.mass()
+    A = shifted(K, M, -SHIFT_FRACTION * lambda_scale(K, M)).tocsr().astype(np.float64)
+    A = A.tolil()
+    A[10, 40] = A[40, 10] = 0.0                                    # one coupling gone, both ways
+    A = A.tocsr()
+    A.eliminate_zeros()
+    return A
+
+
+def test_supervariables_compiled_equal_the_numpy_oracle_and_group_identical_rows():
+    A = _partly_fixed()
+    A.sort_indices()
+    ip, ix = A.indptr.astype(np.int64), A.indices.astype(np.int64)
+    want = fill._compress_numpy(ip, ix)
+    if fill._compress_jit is not None:
+        for got, w in zip(fill._compress_jit(ip, ix), want):
+            np.testing.assert_array_equal(got, w)
+    start, G = fill.supervariables(A)
+    size = np.diff(start)
+    assert set(size) >= {1, 2, 3} and start[-1] == A.shape[0]
+    dense = A.toarray() != 0                                       # loop oracle: rows equal within a group
+    for j in range(len(size)):
+        rows = dense[start[j]:start[j + 1]]
+        assert (rows == rows[0]).all()
+        if start[j + 1] < A.shape[0]:
+            assert not (dense[start[j + 1]] == rows[0]).all()
+        blocks = [any(dense[start[j], start[i]:start[i + 1]]) for i in range(len(size))]
+        np.testing.assert_array_equal(G[:, j].toarray().ravel() != 0, blocks)
+
+
+@needs_fill
+def test_compressed_counts_are_exact_for_the_expanded_order():
+    """The analysis orders the compressed matrix; its weighted column counts give exactly the
+    ``nnz(L)`` and flops that the DOF-level counts give in the same (expanded) order."""
+    A = _partly_fixed()
+    a = fill.analyze_fill(A)
+    assert sorted(a.perm) == list(range(A.shape[0]))
+    c = fill.column_counts(A, a.perm).astype(float)
+    assert a.nnz_l == int(c.sum())
+    assert a.flops == pytest.approx(float(c @ c), rel=1e-12)
 
 
 @needs_fill

@@ -260,7 +260,7 @@ class EigenSolver:
         A, self._shifted = (self._shifted if self._shifted is not None else shifted(self.K, self.M, self.sigma)), None
         if self.method == "shift-invert":
             fac = factorize(A, self.backend, self._analysis)     # CHOLMOD reuses the ordering of _setup
-            self._analysis = self._analysis and replace(self._analysis, factor=None)   # the numbers stay
+            self._analysis = self._analysis and replace(self._analysis, perm=None)   # the numbers stay
             self.backend = fac.backend
             self._op = LinearOperator(A.shape, matvec=fac.solve, matmat=fac.solve, dtype=np.float64)
         else:

@@ -63,8 +63,8 @@ class Factorization:
     backend : {"auto", "cholmod", "cholespy", "splu"}
         ``"auto"``: the first installed of :data:`BACKENDS`.
     analysis : FillAnalysis, optional
-        CHOLMOD's symbolic analysis of ``A``'s pattern (:func:`sc_fem.fem.fill.analyze_fill`):
-        reused by the ``"cholmod"`` backend instead of ordering ``A`` again.
+        The fill analysis of ``A``'s pattern (:func:`sc_fem.fem.fill.analyze_fill`): the
+        ``"cholmod"`` backend factorizes in its order instead of ordering ``A`` again.
 
     Raises
     ------
@@ -94,6 +94,7 @@ class Factorization:
             raise InputError(f"backend {backend!r} is not installed (available: {available_backends()})")
         self.backend = backend
         self.shape = A.shape
+        self._perm = None
         n = A.shape[0]
         A = sp.csr_matrix(A, dtype=np.float64)
         if not np.all(np.isfinite(A.data)):
@@ -102,9 +103,12 @@ class Factorization:
         if backend == "cholmod":
             from sksparse.cholmod import CholmodNotPositiveDefiniteError, cholesky
 
+            perm = getattr(analysis, "perm", None)
+            if perm is not None:            # the analysis's order: A[perm][:, perm] factorized as it stands
+                self._perm = perm
+                A = A[perm][:, perm]
             try:
-                symbolic = getattr(analysis, "factor", None)
-                self._f = cholesky(A.tocsc()) if symbolic is None else symbolic.cholesky(A.tocsc())
+                self._f = cholesky(A.tocsc(), ordering_method="natural" if perm is not None else "default")
             except CholmodNotPositiveDefiniteError:
                 raise SolverError(_singular_message(n, "singular or not positive definite")) from None
             d = self._f.D()
@@ -156,6 +160,9 @@ class Factorization:
             b = np.ascontiguousarray(b)
             x = np.zeros_like(b)
             self._f.solve(b, x)
+        elif self.backend == "cholmod" and self._perm is not None:
+            x = np.empty_like(b)
+            x[self._perm] = self._f(b[self._perm])
         elif self.backend == "cholmod":
             x = self._f(b)
         else:
@@ -180,7 +187,7 @@ def factorize(A: sp.spmatrix, backend: str | None = "auto", analysis: object | N
         ``"auto"`` (default; overridable with the environment variable ``SC_FEM_SOLVER``) picks
         the first installed of CHOLMOD (scikit-sparse), cholespy, SciPy ``splu``.
     analysis : FillAnalysis, optional
-        The symbolic analysis of ``A`` (:func:`sc_fem.fem.fill.analyze_fill`), reused by CHOLMOD.
+        The fill analysis of ``A`` (:func:`sc_fem.fem.fill.analyze_fill`): CHOLMOD factorizes in its order.
 
     Returns
     -------

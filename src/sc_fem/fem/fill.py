@@ -3,10 +3,10 @@
 A factorization's cost is set by its fill, not by the matrix's size: a compact 3-D solid of ``n``
 DOFs fills ``L`` with ~``n^(4/3)`` entries and costs ~``n^2`` flops under nested dissection, a
 thin-walled or many-part model far less (its separators are small). :func:`analyze_fill` takes
-CHOLMOD's fill-reducing ordering of the actual matrix (``sksparse.cholmod.analyze``: the ordering
-and symbolic analysis that the factorization itself starts with) and counts the nonzeros of each
+CHOLMOD's fill-reducing ordering of the actual matrix, compressed to one row per lattice node
+(``sksparse.cholmod.analyze`` of :func:`supervariables`), and counts the nonzeros of each
 column of ``L`` from the elimination tree (:func:`column_counts`, compiled with numba), giving
-``nnz(L)`` and the flops of the numeric factorization. The analyzed CHOLMOD factor is kept, so a
+``nnz(L)`` and the flops of the numeric factorization. The order is kept, so a
 factorization that follows (:func:`sc_fem.fem.linsolve.factorize` with ``analysis=``) does not
 order the matrix a second time. From the fill follow shift-invert's predicted time
 (:func:`shift_invert_seconds`, :data:`FILL_SPEED_MODEL`) and memory
@@ -26,7 +26,7 @@ from .._jit import compiled
 from .factorization import resolve_backend
 
 
-def _column_counts(indptr: np.ndarray, indices: np.ndarray, perm: np.ndarray) -> np.ndarray:
+def _column_counts(indptr: np.ndarray, indices: np.ndarray, perm: np.ndarray, weight: np.ndarray) -> np.ndarray:
     n = len(perm)
     invp = np.empty(n, np.int64)
     for k in range(n):
@@ -44,14 +44,17 @@ def _column_counts(indptr: np.ndarray, indices: np.ndarray, perm: np.ndarray) ->
                     parent[i] = k
                 i = nxt
     mark = np.full(n, -1, np.int64)        # row k of L: the tree paths from A's row k up to k
-    counts = np.ones(n, np.int64)
+    counts = np.empty(n, np.int64)
+    for k in range(n):
+        counts[k] = weight[perm[k]]
     for k in range(n):
         mark[k] = k
         c = perm[k]
+        wk = weight[c]
         for p in range(indptr[c], indptr[c + 1]):
             i = invp[indices[p]]
             while i < k and mark[i] != k:
-                counts[i] += 1
+                counts[i] += wk
                 mark[i] = k
                 i = parent[i]
     return counts
@@ -60,7 +63,7 @@ def _column_counts(indptr: np.ndarray, indices: np.ndarray, perm: np.ndarray) ->
 _column_counts_jit = compiled(_column_counts)
 
 
-def column_counts(A: sp.spmatrix, perm: np.ndarray) -> np.ndarray | None:
+def column_counts(A: sp.spmatrix, perm: np.ndarray, weight: np.ndarray | None = None) -> np.ndarray | None:
     """Nonzeros of each column of the Cholesky factor ``L`` of ``A[perm][:, perm]`` (diagonal included).
 
     Parameters
@@ -69,18 +72,122 @@ def column_counts(A: sp.spmatrix, perm: np.ndarray) -> np.ndarray | None:
         Structurally symmetric (only its pattern is read).
     perm : ndarray of int, shape (n,)
         The elimination order (e.g. CHOLMOD's ``Factor.P()``).
+    weight : ndarray of int, shape (n,), optional
+        Rows each row of ``A`` stands for (a compressed matrix's supervariable sizes,
+        :func:`supervariables`): row ``k`` of ``L`` then adds ``weight[k]`` to each column it
+        touches. Default 1.
 
     Returns
     -------
     ndarray of int64, shape (n,), or None
-        Column counts in elimination order (``sum`` = ``nnz(L)``); None without numba (the
-        elimination tree is a sequential walk that numpy cannot vectorize).
+        Column counts in elimination order (``sum`` = ``nnz(L)``); with ``weight``, the count of a
+        supervariable's first column in the uncompressed factor (its ``t``-th column has ``t``
+        fewer). None without numba (the elimination tree is a sequential walk that numpy cannot
+        vectorize).
     """
     if _column_counts_jit is None:
         return None
     A = sp.csc_matrix(A)
+    n = A.shape[0]
+    weight = np.ones(n, np.int64) if weight is None else np.asarray(weight, dtype=np.int64)
     return _column_counts_jit(A.indptr.astype(np.int64), A.indices.astype(np.int64),
-                              np.asarray(perm, dtype=np.int64))
+                              np.asarray(perm, dtype=np.int64), weight)
+
+
+def _compress(indptr: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    n = len(indptr) - 1
+    same = np.zeros(n, np.bool_)             # row i has row i - 1's pattern
+    for i in range(1, n):
+        a, b, m = indptr[i - 1], indptr[i], indptr[i + 1] - indptr[i]
+        if m == 0 or b - a != m:
+            continue
+        eq = True
+        for p in range(m):
+            if indices[a + p] != indices[b + p]:
+                eq = False
+                break
+        same[i] = eq
+    group = np.empty(n, np.int64)
+    g = -1
+    for i in range(n):
+        if not same[i]:
+            g += 1
+        group[i] = g
+    start = np.empty(g + 2, np.int64)
+    k = 0
+    for i in range(n):
+        if not same[i]:
+            start[k] = i
+            k += 1
+    start[g + 1] = n
+    gptr = np.zeros(g + 2, np.int64)          # the compressed pattern, a row per supervariable
+    for j in range(g + 1):
+        r = start[j]
+        for p in range(indptr[r], indptr[r + 1]):
+            c = indices[p]
+            if start[group[c]] == c:
+                gptr[j + 1] += 1
+    for j in range(g + 1):
+        gptr[j + 1] += gptr[j]
+    gind = np.empty(gptr[g + 1], np.int64)
+    for j in range(g + 1):
+        r, q = start[j], gptr[j]
+        for p in range(indptr[r], indptr[r + 1]):
+            c = indices[p]
+            if start[group[c]] == c:
+                gind[q] = group[c]
+                q += 1
+    return start, gptr, gind
+
+
+_compress_jit = compiled(_compress)
+
+
+def _compress_numpy(indptr: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_compress` in numpy (vectorized over the entries; its oracle, and the fallback)."""
+    n = len(indptr) - 1
+    length = np.diff(indptr)
+    same = np.zeros(n, bool)
+    cand = np.flatnonzero((length[1:] == length[:-1]) & (length[1:] > 0)) + 1
+    if len(cand):
+        m = length[cand]
+        within = np.arange(int(m.sum())) - np.repeat(np.cumsum(m) - m, m)
+        pos = np.repeat(indptr[cand], m) + within
+        eq = indices[pos] == indices[pos - np.repeat(m, m)]
+        same[cand] = np.logical_and.reduceat(eq, np.cumsum(m) - m)
+    start = np.flatnonzero(~same)
+    group = np.cumsum(~same) - 1
+    m = length[start]
+    cols = indices[np.repeat(indptr[start], m) + np.arange(int(m.sum())) - np.repeat(np.cumsum(m) - m, m)]
+    first = start[group[cols]] == cols
+    gptr = np.concatenate([[0], np.cumsum(np.add.reduceat(first, np.cumsum(m) - m) if len(m) else [])])
+    return np.append(start, n).astype(np.int64), gptr.astype(np.int64), group[cols[first]].astype(np.int64)
+
+
+def supervariables(A: sp.spmatrix) -> tuple[np.ndarray, sp.csc_matrix]:
+    """Runs of consecutive rows of ``A`` with one sparsity pattern (a lattice node's 3 DOFs).
+
+    Parameters
+    ----------
+    A : scipy.sparse matrix, shape (n, n)
+        Structurally symmetric, explicit zeros kept where a block has them (as
+        :func:`sc_fem.fem.eigen.shifted` does): rows that differ only by a dropped zero are kept
+        apart, which is exact, only less compressed.
+
+    Returns
+    -------
+    start : ndarray of int64, shape (g + 1,)
+        Supervariable ``j`` is rows ``start[j]:start[j + 1]``.
+    G : scipy.sparse.csc_matrix, shape (g, g)
+        The compressed pattern: ``G[i, j]`` is nonzero where ``A``'s block ``(i, j)`` is (every
+        entry of a block is, by symmetry, when one is).
+    """
+    A = sp.csr_matrix(A)
+    A.sort_indices()
+    kernel = _compress_jit if _compress_jit is not None else _compress_numpy
+    start, gptr, gind = kernel(A.indptr.astype(np.int64), A.indices.astype(np.int64))
+    g = len(start) - 1
+    return start, sp.csc_matrix((np.ones(len(gind)), gind, gptr), shape=(g, g))   # symmetric: CSR = CSC
 
 
 @dataclass(frozen=True, eq=False)
@@ -98,20 +205,27 @@ class FillAnalysis:
         ``sum_j c_j^2`` over the column counts ``c_j``: the numeric factorization's floating-point
         operations (the leading term of the count).
     seconds : float
-        Wall time of the ordering and the column counts.
-    factor : object or None
-        The analyzed ``sksparse.cholmod.Factor`` (symbolic only), for the factorization to reuse.
+        Wall time of the compression, the ordering and the column counts.
+    perm : ndarray of int64, shape (n,) or None
+        The fill-reducing elimination order the counts are for (``A[perm][:, perm]`` is
+        factorized), for the factorization to reuse (:class:`sc_fem.fem.linsolve.Factorization`).
     """
 
     n: int
     nnz_l: int
     flops: float
     seconds: float
-    factor: object = None
+    perm: np.ndarray | None = None
 
 
 def analyze_fill(A: sp.spmatrix, backend: str = "auto") -> FillAnalysis | None:
-    """CHOLMOD's ordering of ``A`` and the fill and flops of its factorization, without factorizing.
+    """A fill-reducing order of ``A`` and the fill and flops of its factorization, without factorizing.
+
+    The rows of one lattice node share a pattern, so the order is CHOLMOD's AMD or METIS
+    (``sksparse.cholmod.analyze``), whichever fills less, of the compressed matrix, one row per node
+    (:func:`supervariables`: 9x fewer entries; at 139,656 DOFs 0.5 s against 3.2 s for the DOF-level
+    ordering, with 1.7 % more ``nnz(L)`` and the same flops), each node's rows kept together; the
+    counts are exact for that order (:func:`column_counts` with the supervariables' sizes).
 
     Parameters
     ----------
@@ -119,7 +233,7 @@ def analyze_fill(A: sp.spmatrix, backend: str = "auto") -> FillAnalysis | None:
         Symmetric (e.g. ``K - sigma M``); the analysis depends on its pattern only.
     backend : {"auto", "cholmod", "cholespy", "splu"}
         The factorization backend that would be used (:func:`sc_fem.fem.linsolve.factorize`;
-        ``"auto"`` honours ``SC_FEM_SOLVER``): the analysis is CHOLMOD's, so another backend gets
+        ``"auto"`` honours ``SC_FEM_SOLVER``): the order is for CHOLMOD, so another backend gets
         None.
 
     Returns
@@ -132,11 +246,24 @@ def analyze_fill(A: sp.spmatrix, backend: str = "auto") -> FillAnalysis | None:
     from sksparse.cholmod import analyze
 
     t0 = time.perf_counter()
-    A = sp.csc_matrix(A, dtype=np.float64)
-    factor = analyze(A)
-    counts = column_counts(A, factor.P()).astype(np.float64)
-    return FillAnalysis(n=A.shape[0], nnz_l=int(counts.sum()), flops=float(np.dot(counts, counts)),
-                        seconds=time.perf_counter() - t0, factor=factor)
+    start, G = supervariables(A)
+    size = np.diff(start)
+    best = None
+    for method in ("amd", "metis"):               # CHOLMOD's own "default" picks one by DOF-level
+        try:                                      # flops per entry, which the compressed graph hides
+            order = analyze(G, ordering_method=method).P().astype(np.int64)
+        except Exception:                         # noqa: BLE001 - METIS not compiled in: AMD alone
+            continue
+        c = column_counts(G, order, size).astype(np.float64)    # a supervariable's first column
+        s = size[order].astype(np.float64)                      # its t-th column has t fewer
+        nnz_l = float(np.sum(s * c - s * (s - 1) / 2))
+        if best is None or nnz_l < best[0]:
+            best = nnz_l, float(np.sum(s * c * c - c * s * (s - 1) + (s - 1) * s * (2 * s - 1) / 6)), order
+    nnz_l, flops, order = best
+    so = size[order]
+    perm = np.repeat(start[order], so) + (np.arange(A.shape[0]) - np.repeat(np.cumsum(so) - so, so))
+    return FillAnalysis(n=A.shape[0], nnz_l=int(round(nnz_l)), flops=flops, seconds=time.perf_counter() - t0,
+                        perm=perm)
 
 
 FILL_SPEED_MODEL = {"flops_per_second": 21e9, "seconds_per_entry": 3.4e-9, "seconds_per_dof": 2.0e-7}
