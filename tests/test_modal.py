@@ -421,6 +421,67 @@ def test_lobpcg_stops_and_says_so_when_lobpcg_gives_up(monkeypatch):
     ref = solve_eigen(K, M, 4, method="shift-invert", backend="splu")
     np.testing.assert_allclose(got.eigenvalues, ref.eigenvalues, rtol=1e-9)
     assert np.all(got.residuals < 1e-8)
+    # the same fallback when the solver owns K and M (K overwritten, then given up for node blocks)
+    own = EigenSolver(K.copy(), M.copy(), method="auto", near_null=B, overwrite=True).solve(4)
+    assert own.method == "shift-invert" and "fell back to shift-invert" in own.reason
+    np.testing.assert_allclose(own.eigenvalues, ref.eigenvalues, rtol=1e-9)
+    assert np.all(own.residuals < 1e-8)
+
+
+@pytest.mark.parametrize("method", ["lobpcg", "shift-invert"])
+def test_a_solver_that_owns_K_and_M_keeps_less_and_solves_the_same(method):
+    """``overwrite=True`` (what ``modal`` passes): ``K`` becomes ``K - sigma M`` in place and, for
+    LOBPCG, ``M`` keeps its nonzeros alone (a third of the lattice pattern) and ``K``'s products come
+    from the node blocks; the eigenpairs, residuals and later solves are those of the copies."""
+    from sc_fem.fem.eigen import EigenSolver
+    from sc_fem.fem.shift import ComponentMass, ShiftedStiffness
+
+    m = CubeModel.box((16, 4, 3), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
+    asm = Assembler(m, "q1i", fixed_dofs=np.arange(3 * 20))
+    K, M, B = asm.stiffness(), asm.mass(), rigid_body_modes(m.nodes_m, asm.free_dofs)
+    K0, M0 = K.copy(), M.copy()
+    ref = EigenSolver(K0, M0, method=method, near_null=B, backend="splu").solve(5)
+    assert (K0 != K).nnz == 0 and (M0 != M).nnz == 0                 # not owned: untouched
+    own = EigenSolver(K, M, method=method, near_null=B, backend="splu", overwrite=True)
+    got = own.solve(5)
+    np.testing.assert_allclose(got.eigenvalues, ref.eigenvalues, rtol=1e-9)
+    np.testing.assert_allclose(got.residuals, ref.residuals, rtol=1e-3, atol=1e-12)
+    assert isinstance(own.K, ShiftedStiffness)
+    x = np.random.default_rng(1).standard_normal((K0.shape[0], 2))
+    np.testing.assert_allclose(own.K @ x, K0 @ x, rtol=1e-9, atol=1e-9 * abs(K0 @ x).max())
+    if method == "lobpcg":                    # M = m (x) I3: the node matrix alone, a ninth of M's entries
+        assert isinstance(own.M, ComponentMass) and own.M.m.nnz * 9 == M0.nnz
+        np.testing.assert_array_equal(own.M @ x, M0 @ x)
+        np.testing.assert_array_equal(own.M.diagonal(), M0.diagonal())
+    more = own.solve(8)                                              # reused set-up, more pairs
+    assert more.info["setup_reused"]
+    np.testing.assert_allclose(more.eigenvalues, EigenSolver(K0, M0, method="shift-invert", backend="splu")
+                               .solve(8).eigenvalues, rtol=1e-7)
+
+
+def test_component_mass_is_found_exactly_and_only_where_it_holds():
+    """``M = m (x) I3`` is recognized entry by entry (loop oracle over the node pairs); a mass with a
+    node fixed in one component only, or one entry changed, is not."""
+    from sc_fem.fem.shift import ComponentMass
+
+    m = CubeModel.box((4, 3, 2), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
+    for lumped in (False, True):
+        M = Assembler(m, "q1i").mass(lumped=lumped).tocsr()
+        cm = ComponentMass.of(M)
+        assert cm is not None
+        dense, node = M.toarray(), cm.m.toarray()
+        for i in range(node.shape[0]):                                   # loop oracle over node pairs
+            for j in range(node.shape[0]):
+                np.testing.assert_array_equal(dense[3 * i:3 * i + 3, 3 * j:3 * j + 3], node[i, j] * np.eye(3))
+    M = Assembler(m, "q1i", fixed_dofs=[0]).mass().tocsr()               # node 0 fixed in x alone
+    assert ComponentMass.of(M) is None
+    M = Assembler(m, "q1i").mass().tolil()
+    M[4, 7] = M[4, 7] * (1 + 1e-12)                                      # one component differs
+    assert ComponentMass.of(M.tocsr()) is None
+    M = Assembler(m, "q1i").mass().tocsr()
+    B = M.copy()
+    B.data[np.flatnonzero(B.data == 0)[:1]] = 1.0                        # a coupling between components
+    assert ComponentMass.of(B) is None
 
 
 def test_lobpcg_restarts_a_round_that_stalls_and_converges(monkeypatch):

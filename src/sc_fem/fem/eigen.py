@@ -52,18 +52,15 @@ from ..errors import InputError, SolverError
 from .bsr import node_blocks
 from .linsolve import factorize
 from .multigrid import LatticeAMG
+# SHIFT_FRACTION, lambda_scale and shifted are re-exported: the eigensolver's names stay importable from here
+from .shift import (SHIFT_FRACTION, ComponentMass, ShiftedStiffness, lambda_scale, shift_in_place,  # noqa: F401
+                    shifted, without_zeros)
 from .spmm import BlockProduct
 # EigenOptions and lobpcg_memory_estimate are re-exported: the eigensolver's names stay importable from here
 from .options import (METHODS, EigenOptions, choose_method, factor_memory_estimate, fill_analysis,  # noqa: F401
                       lobpcg_memory_estimate, memory_budget, predicted_seconds)
 
 _LOG = logger.getChild("eigen")
-
-SHIFT_FRACTION = 1e-7
-"""The shift is ``-SHIFT_FRACTION * mean(diag K) / mean(diag M)``: far below every elastic
-eigenvalue of a voxel model (so convergence is not slowed) yet large enough that
-``K - sigma M`` stays well conditioned (condition number about ``1 / SHIFT_FRACTION``)."""
-
 
 @dataclass(frozen=True, eq=False)
 class EigenResult:
@@ -104,15 +101,6 @@ class EigenResult:
     residuals: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
-def lambda_scale(K: sp.spmatrix, M: sp.spmatrix) -> float:
-    """``mean(diag K) / mean(diag M)`` in 1/s^2: the order of the largest eigenvalues."""
-    dk, dm = np.asarray(K.diagonal()), np.asarray(M.diagonal())
-    s = float(dk.mean() / dm.mean()) if len(dk) else 0.0
-    if not np.isfinite(s) or s <= 0:
-        raise SolverError("K and M must have positive diagonals (is the mass zero somewhere?)")
-    return s
-
-
 LOBPCG_ACCEPT = 1e-3
 """Largest relative residual ``||K phi - lambda M phi|| / ||K phi||`` of a wanted LOBPCG pair that
 is accepted (after the Rayleigh--Ritz step) when LOBPCG stops short of its tolerance; it stalls at
@@ -128,19 +116,6 @@ LOBPCG_ROUNDS = (20, 8)
 eigenpairs' residuals (see ``EigenSolver._lobpcg``): small models converge within the first
 round (rounds of 12 took 29 iterations instead of 23 on a 3,000-DOF bar); on the 158,976-DOF
 cantilever rounds of 20 stopped at 46 iterations, 20 then 8 at 34 (each restart costs a few)."""
-
-
-def shifted(K: sp.spmatrix, M: sp.spmatrix, sigma: float) -> sp.csr_matrix:
-    """``K - sigma M`` as CSR; when both share one sparsity pattern (the assembler's consistent
-    ``M`` shares ``K``'s), one operation on the values instead of a sparse merge (4.7 s at
-    931,896 DOFs)."""
-    K, M = sp.csr_matrix(K), sp.csr_matrix(M)
-    same = (K.nnz == M.nnz and K.has_sorted_indices and M.has_sorted_indices
-            and (K.indptr is M.indptr or np.array_equal(K.indptr, M.indptr))
-            and (K.indices is M.indices or np.array_equal(K.indices, M.indices)))
-    if not same:
-        return (K - sigma * M).tocsr()
-    return sp.csr_matrix((K.data - sigma * M.data, K.indices, K.indptr), shape=K.shape)
 
 
 def rayleigh_ritz(K, M, X: np.ndarray, k: int | None = None
@@ -209,6 +184,10 @@ class EigenSolver:
     lattice : bool
         ``K`` and ``M`` are a trilinear lattice's (``"auto"`` may take LOBPCG + the lattice
         multigrid); False (higher-order cubes): ``"auto"`` takes shift-invert whenever it fits.
+    overwrite : bool
+        ``K`` and ``M`` are the solver's (the caller keeps no reference): ``K`` is overwritten by
+        ``K - sigma M`` and, for LOBPCG, both give way to leaner forms (:mod:`sc_fem.fem.shift`;
+        a million cubes: ~5 GB less). Default False: ``K`` and ``M`` are left as they are.
 
     Attributes
     ----------
@@ -224,13 +203,14 @@ class EigenSolver:
     def __init__(self, K: sp.spmatrix, M: sp.spmatrix, *, method: str = "auto", backend: str = "auto",
                  sigma: float | None = None, near_null: np.ndarray | None = None,
                  aggregates: np.ndarray | None = None, tol: float = 0.0, lobpcg_tol: float = 1e-3,
-                 maxiter: int = 400, max_memory: float | None = None, seed: int = 0, lattice: bool = True) -> None:
+                 maxiter: int = 400, max_memory: float | None = None, seed: int = 0, lattice: bool = True,
+                 overwrite: bool = False) -> None:
         if method not in METHODS:
             raise InputError(f"method must be one of {list(METHODS)}, got {method!r}")
         if not (sp.issparse(K) and sp.issparse(M)) or K.shape != M.shape or K.shape[0] != K.shape[1]:
             raise InputError("K and M must be square scipy.sparse matrices of the same shape")
         self.K, self.M = sp.csr_matrix(K, dtype=float), sp.csr_matrix(M, dtype=float)
-        self.n = self.K.shape[0]
+        self.n, self.nnz, self.overwrite = self.K.shape[0], self.K.nnz, bool(overwrite)
         self.lambda_scale = lambda_scale(self.K, self.M)
         if sigma is None:
             sigma = -SHIFT_FRACTION * self.lambda_scale
@@ -246,18 +226,30 @@ class EigenSolver:
         self._shifted = self._analysis = None  # K - sigma M and its fill (FillAnalysis), from _setup to _build
 
     def _setup(self, k: int) -> None:
-        self._shifted, self.reason = shifted(self.K, self.M, self.sigma), "requested"
+        self._shifted, self.reason = self._shift(), "requested"
         if self.method == "auto":     # shift-invert predicted from the fill of K - sigma M (CHOLMOD + numba)
             self._analysis = a = fill_analysis(self._shifted, self.backend)
-            self.method, self.reason = choose_method(self.n, self.K.nnz, k, self.max_memory, a, self.lattice)
+            self.method, self.reason = choose_method(self.n, self.nnz, k, self.max_memory, a, self.lattice)
             self._auto, self._setup_seconds = True, a.seconds if a is not None else 0.0
             self._info["predicted_seconds"] = {m: predicted_seconds(m, self.n, k, a) for m in METHODS[1:]}
         self._build()
 
+    def _shift(self) -> sp.csr_matrix:
+        """``K - sigma M``: over ``K`` (then ``K`` products from it) with ``overwrite``, from the node
+        blocks after a LOBPCG set-up, else a new matrix."""
+        if isinstance(self.K, ShiftedStiffness):
+            return self.K.shifted_matrix()
+        if not self.overwrite:
+            return shifted(self.K, self.M, self.sigma)
+        A = shift_in_place(self.K, self.M, self.sigma)
+        if A is self.K:
+            self.K = ShiftedStiffness(A.__matmul__, self.M.__matmul__, self.sigma, A)
+        return A
+
     def _build(self) -> None:
         """The factorization of ``K - sigma M`` (shift-invert) or the AMG hierarchy (LOBPCG)."""
         t0 = time.perf_counter()
-        A, self._shifted = (self._shifted if self._shifted is not None else shifted(self.K, self.M, self.sigma)), None
+        A, self._shifted = (self._shifted if self._shifted is not None else self._shift()), None
         if self.method == "shift-invert":
             fac = factorize(A, self.backend, self._analysis)     # CHOLMOD reuses the ordering of _setup
             self._analysis = self._analysis and replace(self._analysis, perm=None)   # the numbers stay
@@ -265,13 +257,19 @@ class EigenSolver:
             self._op = LinearOperator(A.shape, matvec=fac.solve, matmat=fac.solve, dtype=np.float64)
         else:
             bs = 3 if self.n % 3 == 0 else 1
+            Mp = None
+            if self.overwrite:                       # M's nonzeros alone; K's products from the blocks
+                Mp = ComponentMass.of(self.M)
+                self.M, self.K = Mp if Mp is not None else without_zeros(self.M), None
             A = node_blocks(A) if bs == 3 else A     # node blocks now: the CSR copy is freed before the set-up
             amg = LatticeAMG(A, self.near_null, aggregates=self.aggregates, blocksize=bs, seed=self.seed)
             del A
-            self._products = amg.levels[0], BlockProduct(self.M)       # K - sigma M as node blocks, and M
+            self._products = amg.levels[0], Mp if Mp is not None else BlockProduct(self.M)   # K - sigma M, M
+            if self.K is None:
+                self.K = ShiftedStiffness(*self._products, self.sigma, self._products[0].A)
             self._op, self.backend = amg.operator(), "pyamg"      # pyamg aggregation and tentative prolongator
             self._info["levels"] = len(amg.levels)
-        self._info["factor_memory_estimate"] = factor_memory_estimate(self.n, self.K.nnz, self._analysis)
+        self._info["factor_memory_estimate"] = factor_memory_estimate(self.n, self.nnz, self._analysis)
         self.n_setups += 1
         self._setup_seconds += time.perf_counter() - t0
         what = f"{self.backend} factorization" if self.method == "shift-invert" else f"AMG hierarchy ({self._info['levels']} levels)"
@@ -287,7 +285,7 @@ class EigenSolver:
         if not self._auto:
             raise SolverError(f"{msg}; use the shift-invert solver (eigen='shift-invert', or 'auto' to "
                               f"fall back automatically)")
-        need, budget = factor_memory_estimate(self.n, self.K.nnz, self._analysis), memory_budget(self.max_memory)
+        need, budget = factor_memory_estimate(self.n, self.nnz, self._analysis), memory_budget(self.max_memory)
         if need > budget:
             raise SolverError(f"{msg}; shift-invert would need ~{need / 2**30:.1f} GiB > budget "
                               f"{budget / 2**30:.1f} GiB: use a coarser resolution or raise max_memory "

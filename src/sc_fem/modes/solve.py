@@ -96,7 +96,8 @@ def solve_scene(scene, req: ModalRequest) -> Solved:
     aggregates = None if element in DEGREES else lattice_aggregates(model, labels, asm.free_dofs)
     solver = EigenSolver(K, M, method=req.eigen.solver, backend=req.eigen.backend, aggregates=aggregates,
                          near_null=rigid_body_modes(nodes_m, asm.free_dofs), max_memory=req.eigen.max_memory,
-                         lattice=element not in DEGREES)
+                         lattice=element not in DEGREES, overwrite=True)
+    del K, M                                                      # the solver's now: it frees what it need not keep
     scale = solver.lambda_scale
     passes = 0
     while True:                                                   # loop: grow k until enough modes
