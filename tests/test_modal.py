@@ -614,3 +614,20 @@ def test_lobpcg_converges_on_the_thin_slatted_chair():
     si = modal("builtin:chair", n_modes=10, resolution=32, eigen="shift-invert")
     assert lo.eigen["method"] == "lobpcg" and lo.eigen["stop"] == "converged"
     np.testing.assert_allclose(lo.frequencies, si.frequencies, rtol=1e-8)
+
+
+def test_without_zeros_equals_scipys_eliminate_zeros():
+    """:func:`sc_fem.fem.shift.without_zeros` against scipy's in-place ``eliminate_zeros`` on random
+    matrices with empty rows, all-zero rows and no entries at all."""
+    import scipy.sparse as sp
+
+    from sc_fem.fem.shift import without_zeros
+
+    rng = np.random.default_rng(0)
+    for t in range(100):
+        A = sp.random(30, 20, density=rng.uniform(0, 0.3), format="csr", random_state=t)
+        A.data[rng.random(A.nnz) < 0.4] = 0.0
+        B, C = without_zeros(A), A.copy()
+        C.eliminate_zeros()
+        assert B.nnz == C.nnz and np.array_equal(B.indptr, C.indptr) and (B != C).nnz == 0
+    assert without_zeros(sp.csr_matrix((3, 3))).nnz == 0

@@ -104,12 +104,9 @@ def without_zeros(M: sp.csr_matrix) -> sp.csr_matrix:
     """
     M = sp.csr_matrix(M)
     keep = M.data != 0
-    full = np.diff(M.indptr) > 0
-    kept = np.zeros(M.shape[0], dtype=np.int64)         # per row (reduceat over the non-empty rows)
-    if M.nnz:
-        kept[full] = np.add.reduceat(keep, M.indptr[:-1][full], dtype=np.int64)
-    indptr = np.concatenate([[0], np.cumsum(kept)]).astype(M.indptr.dtype)
-    return sp.csr_matrix((M.data[keep], M.indices[keep], indptr), shape=M.shape)
+    upto = np.cumsum(keep, dtype=np.int32 if M.nnz < 2**31 else np.int64)   # entries kept up to each
+    indptr = np.where(M.indptr > 0, upto[np.maximum(M.indptr - 1, 0)] if M.nnz else 0, 0)
+    return sp.csr_matrix((M.data[keep], M.indices[keep], indptr.astype(M.indptr.dtype)), shape=M.shape)
 
 
 class ShiftedStiffness(LinearOperator):
