@@ -58,7 +58,7 @@ from .shift import (SHIFT_FRACTION, ComponentMass, ShiftedStiffness, lambda_scal
 from .spmm import BlockProduct
 # EigenOptions and lobpcg_memory_estimate are re-exported: the eigensolver's names stay importable from here
 from .options import (METHODS, EigenOptions, choose_method, factor_memory_estimate, fill_analysis,  # noqa: F401
-                      lobpcg_memory_estimate, memory_budget, predicted_seconds)
+                      lobpcg_block, lobpcg_memory_estimate, memory_budget, predicted_seconds)
 
 _LOG = logger.getChild("eigen")
 
@@ -308,7 +308,7 @@ class EigenSolver:
     def _lobpcg(self, k: int) -> tuple[np.ndarray, dict]:
         import warnings
 
-        m = min(self.n - 1, k + max(4, k // 4))   # a few extra vectors speed convergence
+        m = min(self.n - 1, lobpcg_block(k))      # a few extra vectors speed convergence
         X = np.random.default_rng(self.seed).standard_normal((self.n, m))
         if (B := self.near_null) is not None:      # start in the rigid space: those modes converge at once
             X[:, :min(B.shape[1], m)] = B[:, :min(B.shape[1], m)]

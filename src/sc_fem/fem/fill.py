@@ -277,9 +277,9 @@ relative) to the 10 shapes of ``python benchmarks/auto_choice.py --quick`` (2026
 taken / predicted 0.85-1.2 on 8 of 10, 1.47 on the bridge and 1.83 on the armchair. See
 ``docs/performance.md`` for the shapes it was not fitted to."""
 
-LOBPCG_FILL_MODEL = {"c": 0.25, "q0": 13.0, "beta": 1.0, "cap": 8.0}
+LOBPCG_FILL_MODEL = {"c": 0.333, "q0": 13.0, "beta": 1.0, "cap": 8.0}
 """LOBPCG + AMG's seconds when the fill is known (:func:`lobpcg_factor`): ``(c * (n / 7776) ** 0.98
-* factor + overhead) * k / 6``, the power law of :data:`sc_fem.fem.options.SPEED_MODEL` for a
+* factor + overhead) * block(k) / block(6)`` (:func:`sc_fem.fem.options.lobpcg_block`), the power law of :data:`sc_fem.fem.options.SPEED_MODEL` for a
 compact solid times ``factor = min((q0 / q) ** beta, cap)`` where ``q = nnz(L) / n^(4/3)`` is below
 ``q0``. LOBPCG's iterations grow on thin, slender members, which the lattice multigrid
 preconditions worse, and such models fill little. ``q0, beta`` fitted to the iterations (16 pairs,
@@ -287,7 +287,10 @@ load-independent): compact solids q = 11-19, 23 iterations (the bunny at r40 34)
 armchair q = 6.4-9.1, 45; plate 6.0, 45; I-beam 5.8, 69; table 5.4, 34; truss bridge 3.6-3.8,
 85-139; the toy truck (many parts) 10.9, 45. ``c`` fitted to the times of the ``--quick`` run
 (numba's products: without numba there is no fill analysis): 0.43 on 2026-11-25, 0.25 on 2026-11-28
-(the geometric mean of taken / predicted was 0.58, spread 0.31-0.86, on a quieter machine)."""
+(the geometric mean of taken / predicted was 0.58, spread 0.31-0.86, on a quieter machine), then
+0.333 when the cost was scaled by LOBPCG's block (20 vectors for the fit's 16 pairs, 10 for 6)
+instead of by ``k / 6``: the same predictions for 16 pairs, and for 6 pairs of the 139,656-DOF
+cantilever 5.85 s instead of 4.39 s (taken: 7.3 s)."""
 
 
 def shift_invert_seconds(analysis: FillAnalysis, k: int) -> float:

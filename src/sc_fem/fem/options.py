@@ -127,7 +127,7 @@ DOFs; LOBPCG + smoothed-aggregation AMG with scipy's products 2.54 s / 4.57 s / 
 24,336 / 55,488 / 158,976 / 931,896 DOFs (2026-11-23), and with the compiled row-parallel products
 (``"lobpcg-numba"``, used when numba is installed) 2.42 s / 9.4-10.2 s at 37,800 / 158,976 DOFs
 (2026-11-24). The factorization's cost grows with ~n^2, LOBPCG's with ~n; they cross near 24,000
-DOFs (~18,000 with numba). LOBPCG's cost also grows with ``k``."""
+DOFs (~18,000 with numba). LOBPCG's cost also grows with its block (:func:`lobpcg_block`)."""
 
 
 LOBPCG_OVERHEAD = 0.15
@@ -160,7 +160,23 @@ def predicted_seconds(method: str, n: int, k: int, analysis: FillAnalysis | None
     thin = 1.0
     if analysis is not None:                  # the fill's model (fill.LOBPCG_FILL_MODEL)
         c, thin = LOBPCG_FILL_MODEL["c"], lobpcg_factor(analysis)
-    return (c * (max(n, 1) / 7776.0) ** p * thin + LOBPCG_OVERHEAD) * max(k, 6) / 6.0
+    return (c * (max(n, 1) / 7776.0) ** p * thin + LOBPCG_OVERHEAD) * lobpcg_block(k) / lobpcg_block(6)
+
+
+def lobpcg_block(k: int) -> int:
+    """Vectors in LOBPCG's block for ``k`` wanted pairs (a few extra speed convergence; its cost grows with it).
+
+    Parameters
+    ----------
+    k : int
+        Wanted eigenpairs.
+
+    Returns
+    -------
+    int
+        ``k + max(4, k // 4)``.
+    """
+    return k + max(4, k // 4)
 
 
 def memory_budget(max_memory: float | None = None) -> float:
