@@ -182,3 +182,33 @@ def test_the_summary_says_what_auto_predicted_and_what_it_took(tmp_path, capsys)
     assert main(["precompute-modes", "builtin:beam", "-r", "8", "-k", "4", "-o", str(tmp_path / "b.npz")]) == 0
     line = next(s for s in capsys.readouterr().out.splitlines() if s.strip().startswith("eigensolver"))
     assert re.search(r"predicted [\d.]+ s shift-invert", line) and re.search(r"took [\d.]+ s", line), line
+
+
+def test_compression_with_empty_rows_and_no_ordering():
+    """Empty rows (a middle one and the last) compress alike in the compiled kernel and its numpy
+    oracle; when no ordering can run, the analysis gives None (the power law predicts)."""
+    D = sp.csr_matrix(np.array([[1, 0, 1, 0], [0, 0, 0, 0], [1, 0, 1, 0], [0, 0, 0, 0]], float))
+    ip, ix = D.indptr.astype(np.int64), D.indices.astype(np.int64)
+    want = fill._compress_numpy(ip, ix)
+    np.testing.assert_array_equal(want[1], [0, 2, 2, 4, 4])         # the compressed rows' pointers
+    if fill._compress_jit is not None:
+        for got, w in zip(fill._compress_jit(ip, ix), want):
+            np.testing.assert_array_equal(got, w)
+
+
+@needs_fill
+def test_no_ordering_means_no_analysis(monkeypatch):
+    import sksparse.cholmod as cholmod
+
+    def fails(*args, **kwargs):
+        raise cholmod.CholmodError("no ordering")
+
+    monkeypatch.setattr(cholmod, "analyze", fails)
+    assert fill.analyze_fill(_shifted((4, 3, 3))) is None
+
+
+def test_the_power_law_scales_lobpcg_by_k_and_the_fill_model_by_its_block():
+    n = 40_000
+    six = options.predicted_seconds("lobpcg", n, 6, None)
+    assert options.predicted_seconds("lobpcg", n, 16, None) == pytest.approx(six * 16 / 6)
+    assert options.lobpcg_block(6) == 10 and options.lobpcg_block(16) == 20 and options.lobpcg_block(40) == 50

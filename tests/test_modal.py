@@ -631,3 +631,28 @@ def test_without_zeros_equals_scipys_eliminate_zeros():
         C.eliminate_zeros()
         assert B.nnz == C.nnz and np.array_equal(B.indptr, C.indptr) and (B != C).nnz == 0
     assert without_zeros(sp.csr_matrix((3, 3))).nnz == 0
+
+
+def test_an_owning_solver_whose_set_up_failed_can_solve_again(monkeypatch):
+    """A LOBPCG set-up that raises (out of memory, say) after ``K`` was overwritten leaves a solver
+    that solves on retry, to the copies' eigenpairs."""
+    from sc_fem.fem import eigen
+    from sc_fem.fem.eigen import EigenSolver
+
+    m = CubeModel.box((8, 4, 3), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
+    asm = Assembler(m, "q1i", fixed_dofs=np.arange(3 * 20))
+    K, M = asm.stiffness(), asm.mass()
+    ref = EigenSolver(K.copy(), M.copy(), method="shift-invert", backend="splu").solve(4)
+    real, calls = eigen.LatticeAMG, []
+
+    def fails_once(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 1:
+            raise MemoryError("simulated")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(eigen, "LatticeAMG", fails_once)
+    own = EigenSolver(K, M, method="lobpcg", overwrite=True)
+    with pytest.raises(MemoryError):
+        own.solve(4)
+    np.testing.assert_allclose(own.solve(4).eigenvalues, ref.eigenvalues, rtol=1e-6)

@@ -52,7 +52,8 @@ from ..errors import InputError, SolverError
 from .bsr import node_blocks
 from .linsolve import factorize
 from .multigrid import LatticeAMG
-# SHIFT_FRACTION, lambda_scale and shifted are re-exported: the eigensolver's names stay importable from here
+# rayleigh_ritz, relative_residuals, SHIFT_FRACTION, lambda_scale and shifted are re-exported: the eigensolver's names stay importable from here
+from .ritz import rayleigh_ritz, relative_residuals  # noqa: F401
 from .shift import (SHIFT_FRACTION, ComponentMass, ShiftedStiffness, lambda_scale, shift_in_place,  # noqa: F401
                     shifted, without_zeros)
 from .spmm import BlockProduct
@@ -87,7 +88,7 @@ class EigenResult:
         Iterations, memory estimate (bytes), ``setup_reused`` (the factorization / hierarchy of an
         earlier :meth:`EigenSolver.solve` was used), etc.
     residuals : ndarray, shape (k,)
-        ``||K phi - lambda M phi|| / ||K phi||`` of each pair (:func:`relative_residuals`).
+        ``||K phi - lambda M phi|| / ||K phi||`` of each pair (:func:`~sc_fem.fem.ritz.relative_residuals`).
     """
 
     eigenvalues: np.ndarray
@@ -116,37 +117,6 @@ LOBPCG_ROUNDS = (20, 8)
 eigenpairs' residuals (see ``EigenSolver._lobpcg``): small models converge within the first
 round (rounds of 12 took 29 iterations instead of 23 on a 3,000-DOF bar); on the 158,976-DOF
 cantilever rounds of 20 stopped at 46 iterations, 20 then 8 at 34 (each restart costs a few)."""
-
-
-def rayleigh_ritz(K, M, X: np.ndarray, k: int | None = None
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Refine a subspace ``X`` (n, m): eigenpairs of ``(X^T K X, X^T M X)``, vectors ``M``-orthonormal.
-
-    Returns the ``k`` smallest (default all ``m``) eigenvalues ``lam`` (k,), vectors ``V`` (n, k),
-    and ``K V``, ``M V`` (n, k) -- obtained from ``K X``, ``M X`` at no extra sparse product, for
-    :func:`relative_residuals`.
-    """
-    from scipy.linalg import eigh
-
-    KX, MX = K @ X, M @ X
-    A = X.T @ KX
-    G = X.T @ MX
-    A, G = 0.5 * (A + A.T), 0.5 * (G + G.T)
-    lam, C = eigh(A, G)
-    C = C[:, :k]
-    return lam[:k], X @ C, KX @ C, MX @ C
-
-
-def relative_residuals(eigenvalues: np.ndarray, KV: np.ndarray, MV: np.ndarray, scale: float) -> np.ndarray:
-    """``||K phi - lambda M phi|| / ||K phi||`` per column from the products ``K V``, ``M V`` (n, k).
-
-    For (near-)rigid modes, where ``K phi ~ 0``, the denominator is floored at
-    ``SHIFT_FRACTION * scale * ||M phi||`` (the size of the shift term; ``scale`` =
-    :func:`lambda_scale`), which is below ``||K phi||`` for every elastic mode.
-    """
-    r = np.linalg.norm(KV - MV * eigenvalues[None, :], axis=0)
-    den = np.maximum(np.linalg.norm(KV, axis=0), SHIFT_FRACTION * scale * np.linalg.norm(MV, axis=0))
-    return r / den
 
 
 class EigenSolver:
@@ -187,7 +157,9 @@ class EigenSolver:
     overwrite : bool
         ``K`` and ``M`` are the solver's (the caller keeps no reference): ``K`` is overwritten by
         ``K - sigma M`` and, for LOBPCG, both give way to leaner forms (:mod:`sc_fem.fem.shift`;
-        a million cubes: ~5 GB less). Default False: ``K`` and ``M`` are left as they are.
+        a million cubes: ~3.3 GiB less). Only where ``M`` shares ``K``'s pattern (the consistent
+        mass): a lumped ``M`` leaves ``K`` as it is and ``K - sigma M`` is a new matrix. Default
+        False: ``K`` and ``M`` are left as they are.
 
     Attributes
     ----------
@@ -257,12 +229,21 @@ class EigenSolver:
             self._op = LinearOperator(A.shape, matvec=fac.solve, matmat=fac.solve, dtype=np.float64)
         else:
             bs = 3 if self.n % 3 == 0 else 1
-            Mp = None
-            if self.overwrite:                       # M's nonzeros alone; K's products from the blocks
-                Mp = ComponentMass.of(self.M)
-                self.M, self.K = Mp if Mp is not None else without_zeros(self.M), None
+            Mp = self.M if isinstance(self.M, ComponentMass) else None       # (a set-up that failed)
+            if self.overwrite and Mp is None and sp.issparse(self.M):   # M's nonzeros alone
+                Mz = without_zeros(self.M)
+                Mp = ComponentMass.of(Mz)
+                self.M = Mp if Mp is not None else Mz
+                del Mz
+            if self.overwrite:                       # K's products from the blocks
+                self.K = None
             A = node_blocks(A) if bs == 3 else A     # node blocks now: the CSR copy is freed before the set-up
-            amg = LatticeAMG(A, self.near_null, aggregates=self.aggregates, blocksize=bs, seed=self.seed)
+            try:
+                amg = LatticeAMG(A, self.near_null, aggregates=self.aggregates, blocksize=bs, seed=self.seed)
+            except BaseException:                    # K as the blocks' products, so that a retry can start over
+                if self.K is None:
+                    self.K = ShiftedStiffness(A.__matmul__, self.M.__matmul__, self.sigma, A)
+                raise
             del A
             self._products = amg.levels[0], Mp if Mp is not None else BlockProduct(self.M)   # K - sigma M, M
             if self.K is None:

@@ -107,8 +107,9 @@ class Factorization:
             if perm is not None:            # the analysis's order: A[perm][:, perm] factorized as it stands
                 self._perm = perm
                 A = A[perm][:, perm]
+            A = sp.csc_matrix((A.data, A.indices, A.indptr), shape=A.shape)   # symmetric: its CSR arrays are CSC
             try:
-                self._f = cholesky(A.tocsc(), ordering_method="natural" if perm is not None else "default")
+                self._f = cholesky(A, ordering_method="natural" if perm is not None else "default")
             except CholmodNotPositiveDefiniteError:
                 raise SolverError(_singular_message(n, "singular or not positive definite")) from None
             d = self._f.D()

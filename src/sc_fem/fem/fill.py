@@ -74,8 +74,8 @@ def column_counts(A: sp.spmatrix, perm: np.ndarray, weight: np.ndarray | None = 
         The elimination order (e.g. CHOLMOD's ``Factor.P()``).
     weight : ndarray of int, shape (n,), optional
         Rows each row of ``A`` stands for (a compressed matrix's supervariable sizes,
-        :func:`supervariables`): row ``k`` of ``L`` then adds ``weight[k]`` to each column it
-        touches. Default 1.
+        :func:`supervariables`), indexed by ``A``'s rows: the ``k``-th row eliminated
+        (``perm[k]``) adds ``weight[perm[k]]`` to each column of ``L`` it touches. Default 1.
 
     Returns
     -------
@@ -160,7 +160,8 @@ def _compress_numpy(indptr: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray
     m = length[start]
     cols = indices[np.repeat(indptr[start], m) + np.arange(int(m.sum())) - np.repeat(np.cumsum(m) - m, m)]
     first = start[group[cols]] == cols
-    gptr = np.concatenate([[0], np.cumsum(np.add.reduceat(first, np.cumsum(m) - m) if len(m) else [])])
+    per_row = np.bincount(np.repeat(np.arange(len(m)), m), weights=first, minlength=len(m))   # empty rows: 0
+    gptr = np.concatenate([[0], np.cumsum(per_row)])
     return np.append(start, n).astype(np.int64), gptr.astype(np.int64), group[cols[first]].astype(np.int64)
 
 
@@ -259,6 +260,8 @@ def analyze_fill(A: sp.spmatrix, backend: str = "auto") -> FillAnalysis | None:
         nnz_l = float(np.sum(s * c - s * (s - 1) / 2))
         if best is None or nnz_l < best[0]:
             best = nnz_l, float(np.sum(s * c * c - c * s * (s - 1) + (s - 1) * s * (2 * s - 1) / 6)), order
+    if best is None:                              # no ordering ran: the power law predicts instead
+        return None
     nnz_l, flops, order = best
     so = size[order]
     perm = np.repeat(start[order], so) + (np.arange(A.shape[0]) - np.repeat(np.cumsum(so) - so, so))

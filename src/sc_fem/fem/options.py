@@ -157,9 +157,9 @@ def predicted_seconds(method: str, n: int, k: int, analysis: FillAnalysis | None
     c, p = SPEED_MODEL["lobpcg-numba" if method == "lobpcg" and available() else method]
     if method != "lobpcg":
         return c * (max(n, 1) / 7776.0) ** p
-    thin = 1.0
-    if analysis is not None:                  # the fill's model (fill.LOBPCG_FILL_MODEL)
-        c, thin = LOBPCG_FILL_MODEL["c"], lobpcg_factor(analysis)
+    if analysis is None:                      # the power law: fitted to 6 pairs, scaled by k
+        return (c * (max(n, 1) / 7776.0) ** p + LOBPCG_OVERHEAD) * max(k, 6) / 6.0
+    c, thin = LOBPCG_FILL_MODEL["c"], lobpcg_factor(analysis)      # the fill's model: by LOBPCG's block
     return (c * (max(n, 1) / 7776.0) ** p * thin + LOBPCG_OVERHEAD) * lobpcg_block(k) / lobpcg_block(6)
 
 

@@ -39,7 +39,7 @@ class ModalBasis:
         rigid modes are removed by default. Stored (not derived from ``frequencies == 0``) because
         the mode file format has it.
     residuals : ndarray, shape (k,)
-        ``||K phi - omega^2 M phi|| / ||K phi||`` of each mode (see :func:`sc_fem.fem.eigen.relative_residuals`).
+        ``||K phi - omega^2 M phi|| / ||K phi||`` of each mode (see :func:`sc_fem.fem.ritz.relative_residuals`).
     n_rigid_removed : int
         Rigid-body modes found and dropped.
     scale : float
