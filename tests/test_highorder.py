@@ -373,18 +373,21 @@ def test_auto_takes_multiscale_cubes_for_thin_walled_models_only_and_says_why():
     the choice does not flip with the resolution), q1i for compact ones, for lumped mass and without
     a surface; a trilinear analysis of walls thinner than a third of a cube warns."""
     from sc_fem.errors import ScFemWarning
-    from sc_fem.fem.choice import choose_element, trilinear_note
+    from sc_fem.fem.choice import choose_element
+
+    def trilinear_note(scene, element):
+        return choose_element(scene, element)[2]
 
     for r in (32, 16, 8):
         thin = Scene.from_mesh(shapes.channel(length=0.4), resolution=r, fill="solid", **STEEL)
-        element, why = choose_element(thin, "auto")
-        assert element == "q3" and "thin-walled" in why, why
+        element, why, note = choose_element(thin, "auto")
+        assert element == "q3" and "thin-walled" in why and note is None, why
     # (thin is the 8-cube channel from here on: walls of 5 mm in cubes of 50 mm)
     compact = Scene.from_mesh("builtin:beam", resolution=8)
     assert choose_element(compact, "auto")[0] == "q1i"
     assert choose_element(thin, "auto", lumped=True)[0] == "q1i"
     assert choose_element(Scene.from_model(thin.model), "auto")[0] == "q1i"
-    assert choose_element(thin, "Q2") == ("q2", "requested")
+    assert choose_element(thin, "Q2") == ("q2", "requested", None)
     with pytest.raises(InputError, match="element"):
         choose_element(thin, "q9")
     assert trilinear_note(compact, "q1i") is None and trilinear_note(thin, "q3") is None
@@ -395,3 +398,45 @@ def test_auto_takes_multiscale_cubes_for_thin_walled_models_only_and_says_why():
     assert b.element == "q1i" and any(issubclass(w.category, ScFemWarning) for w in seen)
     b = sc_fem.modal(thin, n_modes=2, element="auto")
     assert b.element == "q3" and "thin-walled" in b.eigen["element_reason"]
+    # a grid fine enough for the walls keeps the trilinear cubes (the chair: walls of ~1/64 of it)
+    element, why, _ = choose_element(Scene.from_mesh("builtin:chair", resolution=64), "auto")
+    assert element == "q1i" and "resolve the walls" in why, why
+    assert choose_element(Scene.from_mesh("builtin:chair", resolution=32), "auto")[0] == "q3"
+
+
+def test_auto_decides_alike_in_millimetres_off_the_origin_and_turned_y_up():
+    """The walls are measured against the model's own size: the channel in metres, in millimetres
+    5 m off the origin, and turned y-up gets the same choice and the same wall at each grid."""
+    import trimesh
+
+    from sc_fem.fem.choice import choose_element
+
+    ch = shapes.channel(length=0.4)
+    turn = trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0])
+    variants = [(ch, 1.0), (ch.copy().apply_scale(1000.0).apply_translation([5e3, -2e3, 7e3]), 1e-3),
+                (ch.copy().apply_transform(turn), 1.0)]
+    for r in (8, 16):
+        got = [choose_element(Scene.from_mesh(m, resolution=r, fill="solid", scale=s, **STEEL), "auto")
+               for m, s in variants]
+        assert all(g[0] == "q3" for g in got) and len({g[1] for g in got}) == 1, got
+
+
+def test_an_open_sheet_gets_multiscale_cubes_near_kirchhoffs_free_plate():
+    """A 1 m square open sheet (a 10 mm shell, 8 cubes across): ``"auto"`` takes q3, whose first
+    free-free frequencies are within 15 % of the Kirchhoff plate's (Leissa, nu = 0.3: lambda 13.468,
+    19.596, 24.270, 34.801; measured +13 % each, the ratios between them within 0.5 %); trilinear cubes
+    are many times too stiff there."""
+    import trimesh
+
+    sheet = trimesh.Trimesh(vertices=[[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], faces=[[0, 1, 2], [0, 2, 3]])
+    scene = Scene.from_mesh(sheet, resolution=8, shell_thickness=0.01, **STEEL)
+    h, E, nu, rho = 0.01, STEEL["youngs"], STEEL["poisson"], STEEL["density"]
+    plate = np.array([13.468, 19.596, 24.270, 34.801]) / (2 * np.pi) * np.sqrt(E * h**3 / (12 * (1 - nu**2)) / (rho * h))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        q3 = sc_fem.modal(scene, n_modes=4, element="auto")
+        q1 = sc_fem.modal(scene, n_modes=1)
+    assert q3.element == "q3"
+    np.testing.assert_allclose(q3.frequencies[:4], plate, rtol=0.15)
+    np.testing.assert_allclose(q3.frequencies[:4] / q3.frequencies[0], plate / plate[0], rtol=0.01)
+    assert q1.frequencies[0] > 3 * plate[0]

@@ -164,4 +164,4 @@ def add_element_arg(p: argparse.ArgumentParser, *, higher_order: bool = False) -
                    help=f"element type: {', '.join(choices)} (default {DEFAULT_ELEMENT}: trilinear, fast; q3: degree-3 "
                         "cubes, partly filled ones condensed from a finer model of their walls -- thin-walled members "
                         "to a few %%, 10-50x slower; q2: degree 2; auto: q3 for a thin-walled model, walls thinner "
-                        f"than 1/{1 / THIN_WALLS:.0f} of its size, {DEFAULT_ELEMENT} otherwise)")
+                        f"than 1/{1 / THIN_WALLS:.0f} of its size and than a cube, {DEFAULT_ELEMENT} otherwise)")

@@ -31,7 +31,7 @@ from .assemble import Assembler
 from ..lattice.boundary import fixed_dofs
 from .rigid import rigid_block
 from .elements import DEFAULT_ELEMENT
-from .choice import choose_element, trilinear_note
+from .choice import choose_element
 from .highorder import DEGREES, HighOrderAssembler, HighOrderCubes
 from ..errors import BoundaryConditionError, InputError, ScFemWarning, SolverError
 from ..lattice.cubes import CubeModel
@@ -138,7 +138,7 @@ def solve_static(scene: Scene, *, element: str = DEFAULT_ELEMENT, forces: ArrayL
         :func:`sc_fem.solve_static` builds one from a CubeModel or a mesh.
     element : {"auto", "q1i", "q1", "q1sri", "q2", "q3"}
         Element type (default ``"q1i"``); ``"auto"``: multiscale ``"q3"`` cubes for a thin-walled model,
-        ``"q1i"`` otherwise (:func:`sc_fem.fem.highorder.choose_element`; the result's ``info["element"]``
+        ``"q1i"`` otherwise (:func:`sc_fem.fem.choice.choose_element`; the result's ``info["element"]``
         says why); ``"q2"`` / ``"q3"``: degree-2 / 3 cubes (:mod:`sc_fem.fem.highorder`, need the source
         mesh), loaded consistently (gravity through their mass, point forces through their field).
     forces : array_like, shape (m, 3), optional
@@ -178,9 +178,9 @@ def solve_static(scene: Scene, *, element: str = DEFAULT_ELEMENT, forces: ArrayL
         opts = replace(opts, backend=backend)
     report_points = scene.mesh is not None
     model = scene.model
-    element, why = choose_element(scene, element)
+    element, why, note = choose_element(scene, element)
     higher = element in DEGREES
-    if (note := trilinear_note(scene, element)) is not None:
+    if note is not None:
         warnings.warn(note, ScFemWarning, stacklevel=3)
     m = model.n_nodes
     W = scene.W if report_points else None

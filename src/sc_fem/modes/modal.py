@@ -64,7 +64,7 @@ def modal(scene: Scene, *, n_modes: int | None = None, max_frequency: float | No
         Element type (default ``"q1i"``: trilinear, fast; warns when the walls are thinner than a
         third of a cube); ``"q3"``: degree-3 cubes, partly filled ones condensed from a finer model
         (multiscale: thin-walled members to a few %); ``"auto"``: ``"q3"`` for a thin-walled model,
-        ``"q1i"`` otherwise (:func:`sc_fem.fem.highorder.choose_element`; ``eigen["element_reason"]``
+        ``"q1i"`` otherwise (:func:`sc_fem.fem.choice.choose_element`; ``eigen["element_reason"]``
         says why).
     lumped : bool
         Lumped instead of consistent mass.

@@ -18,7 +18,7 @@ from .._log import say
 from ..errors import InputError, ScFemWarning
 from ..fem.assemble import Assembler
 from ..fem.eigen import EigenSolver
-from ..fem.choice import choose_element, trilinear_note
+from ..fem.choice import choose_element
 from ..fem.highorder import DEGREES, HighOrderAssembler, HighOrderCubes
 from ..fem.rigid import rigid_body_modes
 from ..fem.multigrid import lattice_aggregates
@@ -71,8 +71,8 @@ def solve_scene(scene, req: ModalRequest) -> Solved:
     n_modes, max_frequency, max_modes, progress = req.n_modes, req.max_frequency, req.max_modes, req.progress
     t = {}
     t0 = time.perf_counter()
-    element, why = choose_element(scene, req.element, lumped=req.lumped)
-    if (note := trilinear_note(scene, element)) is not None:
+    element, why, note = choose_element(scene, req.element, lumped=req.lumped)
+    if note is not None:
         warnings.warn(note, ScFemWarning, stacklevel=4)
     if element in DEGREES:
         asm = HighOrderAssembler(HighOrderCubes(scene, element))
