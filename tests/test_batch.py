@@ -6,7 +6,8 @@ import csv
 
 import pytest
 
-from sc_fem.io.batch import expand_inputs, output_name, run_batch
+from sc_fem.io.batch import expand_inputs
+from sc_fem.io.precompute import output_name, run_batch
 from sc_fem.errors import InputError
 from sc_fem.io.modes import load_modes
 
@@ -65,7 +66,7 @@ def test_without_dask_runs_serially_and_scheduler_is_refused(tmp_path, monkeypat
 
 def test_one_fix_spec_as_a_string(tmp_path):
     """``fix`` as one spec string (as modal takes it): it was split into single characters."""
-    from sc_fem.io.batch import precompute_one
+    from sc_fem.io.precompute import precompute_one
 
     row = precompute_one("builtin:beam", str(tmp_path / "b.npz"), {"fix": "x<min+0.01", "n_modes": 2, "voxel": {"resolution": 8}})
     assert row["status"] == "ok", row["error"]

@@ -139,12 +139,12 @@ _RELEASE = threading.Event()
 def _beam_only(mesh, output, options):
     """A batch task (module level: dask pickles it by reference) computing the beam's modes; the
     other meshes never finish until ``_RELEASE`` and then write nothing."""
-    from sc_fem.io import batch
+    from sc_fem.io import precompute
 
     if mesh == "builtin:beam":
-        return batch.__dict__["_real_precompute_one"](mesh, output, options)
+        return precompute.__dict__["_real_precompute_one"](mesh, output, options)
     _RELEASE.wait(60)
-    return {**{k: "" for k in batch.SUMMARY_FIELDS}, "mesh": mesh, "status": "error", "error": "released"}
+    return {**{k: "" for k in precompute.SUMMARY_FIELDS}, "mesh": mesh, "status": "error", "error": "released"}
 
 
 def test_ctrl_c_during_a_dask_batch_names_the_completed_mode_files(tmp_path, monkeypatch, capsys):
@@ -154,7 +154,7 @@ def test_ctrl_c_during_a_dask_batch_names_the_completed_mode_files(tmp_path, mon
     import dask.distributed as dd
 
     from sc_fem.io.modes import load_modes
-    from sc_fem.io import batch
+    from sc_fem.io import precompute
 
     out = tmp_path / "out"
     out.mkdir()
@@ -169,8 +169,8 @@ def test_ctrl_c_during_a_dask_batch_names_the_completed_mode_files(tmp_path, mon
         _RELEASE.set()
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(batch, "_real_precompute_one", batch.precompute_one, raising=False)
-    monkeypatch.setattr(batch, "precompute_one", _beam_only)
+    monkeypatch.setattr(precompute, "_real_precompute_one", precompute.precompute_one, raising=False)
+    monkeypatch.setattr(precompute, "precompute_one", _beam_only)
     monkeypatch.setattr(dd, "LocalCluster", lambda *a, **k: real_cluster(*a, **{**k, "processes": False}))
     monkeypatch.setattr(dd, "as_completed", completed)
     code = main(["precompute-modes", "builtin:beam", "builtin:rope", "builtin:bridge", "-r", "4", "-k", "2",
@@ -186,19 +186,19 @@ def test_ctrl_c_during_a_dask_batch_names_the_completed_mode_files(tmp_path, mon
 
 
 def test_ctrl_c_during_a_serial_batch(tmp_path, monkeypatch):
-    from sc_fem.io import batch
+    from sc_fem.io import batch, precompute
 
     monkeypatch.setitem(sys.modules, "dask.distributed", None)          # no dask: the serial loop
-    real_one = batch.precompute_one
+    real_one = precompute.precompute_one
 
     def one(mesh, output, options):
         if mesh != "builtin:beam":
             raise KeyboardInterrupt
         return real_one(mesh, output, options)
 
-    monkeypatch.setattr(batch, "precompute_one", one)
+    monkeypatch.setattr(precompute, "precompute_one", one)
     with pytest.raises(batch.BatchInterrupted) as info:
-        batch.run_batch(["builtin:beam", "builtin:rope"], tmp_path / "o", progress=False,
+        precompute.run_batch(["builtin:beam", "builtin:rope"], tmp_path / "o", progress=False,
                         options={"voxel": {"resolution": 4}, "n_modes": 2, "fix": ["x<min+0.01"]})
     assert info.value.completed == [tmp_path / "o" / "beam.modes.npz"] and info.value.n_meshes == 2
     assert isinstance(info.value, KeyboardInterrupt) and info.value.summary.is_file()
@@ -206,9 +206,9 @@ def test_ctrl_c_during_a_serial_batch(tmp_path, monkeypatch):
 
 _SCRIPT = textwrap.dedent('''
     import sys, time
-    import sc_fem.io.batch as batch
+    import sc_fem.io.precompute as precompute
 
-    _real = batch.precompute_one
+    _real = precompute.precompute_one
 
 
     def one(mesh, output, options):        # the rope never finishes
@@ -218,7 +218,7 @@ _SCRIPT = textwrap.dedent('''
 
 
     if __name__ == "__main__":
-        batch.precompute_one = one
+        precompute.precompute_one = one
         from sc_fem._cli.main import main
 
         sys.exit(main(["precompute-modes", "builtin:beam", "builtin:rope", "-r", "4", "-k", "2", "--fix",

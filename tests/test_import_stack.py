@@ -191,3 +191,9 @@ def test_sizes(limit, where):
     else:
         total = sum(len(p.read_text(encoding="utf-8").splitlines()) for p in (PKG / "_cli").glob("*.py"))
         assert total <= limit, f"the command-line package has {total} lines (limit {limit})"
+
+
+def test_the_batch_runner_knows_no_modes():
+    """``io.batch`` runs any task on Dask; what a task computes (modes, a mode file) is the caller's
+    (``io.precompute``), so the options a task takes pass the runner unopened."""
+    assert GRAPH["sc_fem.io.batch"] and all(floor(t) == 0 for t in GRAPH["sc_fem.io.batch"]), GRAPH["sc_fem.io.batch"]

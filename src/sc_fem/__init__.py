@@ -43,7 +43,7 @@ _LAZY: dict[str, str] = {
     "Animation": ".io.animation", "save_animation": ".io.animation", "load_animation": ".io.animation",
     "save_modes": ".io.modes", "load_modes": ".io.modes",
     # modal analysis
-    "ModalBasis": ".modes.basis", "ModalPlayer": ".modes.player", "run_batch": ".io.batch",
+    "ModalBasis": ".modes.basis", "ModalPlayer": ".modes.player", "run_batch": ".io.precompute",
     "Damping": ".modes.options", "AutoResolution": ".modes.options",
     "BatchResult": ".io.batch", "modal_converged": ".modes.auto",
     # dynamics (loads and contact classes live in sc_fem.dynamics)

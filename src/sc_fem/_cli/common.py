@@ -87,7 +87,7 @@ def add_material_args(p: argparse.ArgumentParser) -> None:
 
 def grid_options(args: argparse.Namespace) -> dict:
     """``{"voxel": VoxelOptions, "auto": AutoResolution or None}`` of the grid/material options of ``args``
-    (keywords of :func:`sc_fem.io.batch.mesh_modes`): the one place ``--resolution`` is read (a number, or
+    (keywords of :func:`sc_fem.io.precompute.mesh_modes`): the one place ``--resolution`` is read (a number, or
     ``auto`` with ``--tolerance`` for the modal command); past here the options carry it unopened."""
     res, tol = getattr(args, "resolution", None), getattr(args, "tolerance", None)
     auto = isinstance(res, str) and res.strip().lower() == "auto"

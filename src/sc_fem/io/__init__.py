@@ -9,7 +9,7 @@ _NAMES = {
     "Animation": ".animation", "save_animation": ".animation", "load_animation": ".animation",
     "resample_animation": ".animation",
     "save_reconstruction": ".reconstruction", "load_reconstruction": ".reconstruction",
-    "run_batch": ".batch", "BatchResult": ".batch", "modes_sheet": ".render",
+    "run_batch": ".precompute", "BatchResult": ".batch", "modes_sheet": ".render",
     "voxelize_to_file": ".voxelize", "precompute_modes": ".precompute", "play_modes": ".playback",
     "simulate_to_file": ".simulation", "reconstruct_to_file": ".reconstruction", "export_to_file": ".export",
     "run_demo": ".demo", "JobResult": ".report",

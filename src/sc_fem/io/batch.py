@@ -1,18 +1,21 @@
-"""Batch mode precomputation on Dask: one task per mesh, a CSV summary, failures isolated.
+"""A batch on Dask: one task per mesh, each writing one file, a CSV summary, failures isolated.
 
-:func:`run_batch` submits :func:`precompute_one` for each mesh to a ``dask.distributed`` cluster --
-a :class:`~distributed.LocalCluster` started for the run (default) or an existing scheduler
-(``scheduler="tcp://host:8786"``). A mesh that fails (unreadable file, bad boundary condition,
-solver error, even a crashed worker) gets ``status="error"`` and its message in the summary; the
-others finish. Progress is shown with tqdm on stderr as tasks complete; the summary is written
-atomically as ``summary.csv`` in the output folder.
+:func:`run_tasks` submits a task ``task(mesh, output, options) -> row`` for each mesh to a
+``dask.distributed`` cluster -- a :class:`~distributed.LocalCluster` started for the run (default)
+or an existing scheduler (``scheduler="tcp://host:8786"``) -- or runs them one after the other
+when dask is not installed. The task never raises: a mesh that fails (unreadable file, bad
+boundary condition, solver error) returns ``status="error"`` and its message, and a crashed
+worker is recorded the same way; the others finish. Progress is shown with tqdm on stderr as
+tasks complete; the summary is written atomically as ``summary.csv`` in the output folder. What a
+task computes is the caller's (:func:`sc_fem.io.precompute.run_batch`: mode files); nothing here
+knows it.
 
 Ctrl-C (SIGINT) is handled by this process alone: the local cluster's worker processes are
 started with SIGINT ignored (so they print no tracebacks; a Ctrl-C while the cluster starts, a
 few seconds, is ignored too), the cluster is shut down, the summary is written (unfinished meshes
-``status="interrupted"``) and :class:`BatchInterrupted` lists the mode files that were completed.
-Mode files are written atomically and validated before writing, so each listed file is complete
-and readable and no other file is left half-written.
+``status="interrupted"``) and :class:`BatchInterrupted` lists the files that were completed. Tasks
+write their files atomically, so each listed file is complete and no other file is left
+half-written.
 """
 
 from __future__ import annotations
@@ -26,32 +29,26 @@ import os
 import signal
 import threading
 import time
-import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Callable, Iterable, Sequence
 
 from .._atomic import atomic_path
 from .._progress import stage_bar
-from ..errors import InputError, ScFemError
-from ..modes.auto import modal_converged
-from ..modes.modal import modal
-from ..scene import Scene
-from .modes import save_modes
+from ..errors import InputError
 
-SUMMARY_FIELDS = ("mesh", "status", "output", "seconds", "cubes", "dofs", "n_modes", "f_min_hz", "f_max_hz",
-                  "solver", "error")
-"""Columns of ``summary.csv``."""
+BASE_FIELDS = ("mesh", "status", "output", "seconds", "error")
+"""Columns every summary has (a task adds its own, :func:`run_tasks`' ``fields``)."""
 
 
 @dataclass(frozen=True)
 class BatchResult:
-    """Outcome of :func:`run_batch`.
+    """Outcome of :func:`run_tasks`.
 
     Attributes
     ----------
     rows : list of dict
-        One row per mesh (keys :data:`SUMMARY_FIELDS`), in input order.
+        One row per mesh (keys: the summary's columns), in input order.
     summary : Path
         The CSV written.
     seconds : float
@@ -77,28 +74,31 @@ class BatchResult:
 
 
 class BatchInterrupted(KeyboardInterrupt):
-    """Ctrl-C during :func:`run_batch`, after the cluster was shut down and the summary written.
+    """Ctrl-C during :func:`run_tasks`, after the cluster was shut down and the summary written.
 
     Attributes
     ----------
     completed : list of Path
-        Mode files this batch completed (written atomically: complete and valid), in input order.
+        Files this batch completed (written atomically: complete and valid), in input order.
     n_meshes : int
         Meshes in the batch.
     summary : Path
         The CSV written (unfinished meshes have ``status="interrupted"``).
+    what : str
+        What the files are, plural (``"mode files"``).
     """
 
-    def __init__(self, completed, n_meshes: int, summary: Path) -> None:
-        super().__init__(f"interrupted: {len(completed)} of {n_meshes} mode files completed")
+    def __init__(self, completed, n_meshes: int, summary: Path, what: str = "files") -> None:
+        super().__init__(f"interrupted: {len(completed)} of {n_meshes} {what} completed")
         self.completed, self.n_meshes, self.summary = [Path(p) for p in completed], n_meshes, Path(summary)
+        self.what = what
 
     @property
     def outcome(self) -> str:
-        """What the stopped batch left, as one sentence: the mode files completed, and the summary."""
-        done = (f"{len(self.completed)} of {self.n_meshes} mode files completed (complete and valid): "
+        """What the stopped batch left, as one sentence: the files completed, and the summary."""
+        done = (f"{len(self.completed)} of {self.n_meshes} {self.what} completed (complete and valid): "
                 + ", ".join(map(str, self.completed)) if self.completed else
-                f"none of the {self.n_meshes} mode files was completed")
+                f"none of the {self.n_meshes} {self.what} was completed")
         return f"{done}; the others were not written; summary {self.summary}"
 
 
@@ -150,7 +150,23 @@ def _stamp(path) -> tuple[int, int] | None:
     return st.st_ino, st.st_mtime_ns
 
 
-def _interrupted(rows: list, meshes: list[str], outputs: list[str], before: dict, out: Path) -> BatchInterrupted:
+def expand_inputs(patterns) -> list[str]:
+    """Meshes from paths, glob patterns (``assets/*.obj``) and ``builtin:NAME``; order kept, no duplicates
+    (one path or pattern on its own is one argument, not a sequence of characters)."""
+    if isinstance(patterns, (str, os.PathLike)):
+        patterns = [patterns]
+    out: list[str] = []
+    for p in patterns:                                     # loop over command-line arguments
+        s = str(p)
+        hits = sorted(glob.glob(s)) if any(c in s for c in "*?[") and not s.startswith("builtin:") else [s]
+        if not hits:
+            raise InputError(f"no file matches {s!r}")
+        out += [h for h in hits if h not in out]
+    return out
+
+
+def _interrupted(rows: list, meshes: list[str], outputs: list[str], before: dict, summary: Path,
+                 fields: Sequence[str], what: str) -> BatchInterrupted:
     """The :class:`BatchInterrupted` of a batch stopped with ``rows`` (None: no result received):
     completed are the outputs reported ok and those replaced on disk since ``before`` (a task that
     finished while the cluster was stopped); the summary is written with the rest interrupted."""
@@ -160,8 +176,8 @@ def _interrupted(rows: list, meshes: list[str], outputs: list[str], before: dict
     cut = {"status": "interrupted", "error": "interrupted (Ctrl-C)"}
     for i, (m, o) in enumerate(zip(meshes, outputs)):     # loop over meshes: rows of unfinished ones
         if rows[i] is None:
-            rows[i] = {**{k: "" for k in SUMMARY_FIELDS}, "mesh": m, **({**late, "output": o} if o in done else cut)}
-    return BatchInterrupted(done, len(meshes), write_summary(rows, out / "summary.csv"))
+            rows[i] = {**{k: "" for k in fields}, "mesh": m, **({**late, "output": o} if o in done else cut)}
+    return BatchInterrupted(done, len(meshes), write_summary(rows, summary, fields), what)
 
 
 @contextlib.contextmanager
@@ -192,76 +208,10 @@ def expand_inputs(patterns) -> list[str]:
     return out
 
 
-def output_name(mesh: str) -> str:
-    """Mode-file name of a mesh: ``chair.obj`` -> ``chair.modes.npz``, ``builtin:bridge`` -> ``bridge.modes.npz``."""
-    stem = mesh.split(":", 1)[1] if mesh.startswith("builtin:") else Path(mesh).stem
-    return f"{stem}.modes.npz"
-
-
-def mesh_modes(mesh: Any, *, voxel: Any = None, auto: Any = None, fix: Any = None, fix_vertices: Any = None,
-               **request: Any) -> Any:
-    """The modes of one mesh, as a job's ``options`` describe them (these keywords).
-
-    Parameters
-    ----------
-    mesh : path, ``"builtin:NAME"`` or mesh-like
-        The source mesh.
-    voxel : VoxelOptions or dict, optional
-        How it is voxelized; its ``resolution`` is the grid (cubes along the longest axis).
-    auto : AutoResolution, optional
-        Choose the grid instead: :func:`sc_fem.modes.auto.modal_converged` over these resolutions.
-    fix : str, FixSpec, callable or list, optional
-        Fixed nodes; ``"default"`` = a built-in model's supports.
-    fix_vertices : array_like of int, optional
-        Source vertices whose cubes are fixed.
-    **request
-        The keywords of :func:`sc_fem.modes.modal.modal` (``n_modes``, ``damping``, ...).
-
-    Returns
-    -------
-    ModalBasis
-        The modes (Hz, m kg^-1/2) baked onto the mesh.
-    """
-    if auto is not None:
-        return modal_converged(mesh, auto, voxel=voxel, fix=fix, fix_vertices=fix_vertices, **request)
-    return modal(Scene.from_mesh(mesh, voxel, fix=fix, fix_vertices=fix_vertices), **request)
-
-
-def precompute_one(mesh: str, output: str, options: dict) -> dict:
-    """Compute and save the modes of one mesh; never raises (errors go in the returned row).
-
-    Parameters
-    ----------
-    mesh : str
-        Path or ``builtin:NAME``.
-    output : str
-        Mode file to write.
-    options : dict
-        Keyword arguments of :func:`mesh_modes` (``voxel``, ``auto``, ``fix``, ``n_modes``, ...).
-    """
-    t0 = time.perf_counter()
-    row: dict[str, Any] = {k: "" for k in SUMMARY_FIELDS}
-    row.update(mesh=mesh, output=output)
-    try:
-        basis = mesh_modes(mesh, **dict(options))
-        save_modes(basis, output)
-        f = basis.frequencies[~basis.rigid]
-        row.update(status="ok", cubes=basis.n_cubes, dofs=basis.n_dofs, n_modes=basis.n_modes,
-                   f_min_hz=f"{f.min():.6g}" if len(f) else "", f_max_hz=f"{f.max():.6g}" if len(f) else "",
-                   solver=f"{basis.eigen.get('method', '')}/{basis.eigen.get('backend', '')}")
-    except Exception as exc:  # noqa: BLE001 - one bad mesh must fail alone, with its message
-        msg = f"{type(exc).__name__}: {exc}"
-        if not isinstance(exc, ScFemError):
-            msg += " | " + traceback.format_exc(limit=-2).strip().replace("\n", " / ")[-400:]
-        row.update(status="error", error=msg, output="")
-    row["seconds"] = f"{time.perf_counter() - t0:.3f}"
-    return row
-
-
-def write_summary(rows: list[dict], path) -> Path:
-    """Write the summary rows as CSV atomically."""
+def write_summary(rows: list[dict], path, fields: Sequence[str] = BASE_FIELDS) -> Path:
+    """Write the summary rows as CSV atomically (the columns ``fields``; other keys are left out)."""
     buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=list(SUMMARY_FIELDS), extrasaction="ignore")
+    w = csv.DictWriter(buf, fieldnames=list(fields), extrasaction="ignore")
     w.writeheader()
     w.writerows(rows)
     path = Path(path)
@@ -270,19 +220,35 @@ def write_summary(rows: list[dict], path) -> Path:
     return path
 
 
-def run_batch(meshes: Iterable[str], out_dir: str | Path, *, options: dict | None = None,
-              scheduler: str | None = None, n_workers: int | None = None, processes: bool = True, progress: bool = True,
-              expand: bool = True) -> BatchResult:
-    """Precompute modes for many meshes, one Dask task per mesh.
+Task = Callable[[str, str, dict], dict]
+"""A batch task: ``task(mesh, output, options) -> row`` writes ``output`` and never raises (its
+failure is the row's ``status="error"`` and ``error``); a module-level function, so that dask
+can send it to worker processes by reference."""
+
+
+def run_tasks(task: Task, meshes: Sequence[str], outputs: Sequence[str], summary: str | Path, *,
+              options: dict | None = None, fields: Sequence[str] = BASE_FIELDS, what: str = "files",
+              scheduler: str | None = None, n_workers: int | None = None, processes: bool = True,
+              progress: bool = True) -> BatchResult:
+    """Run ``task(mesh, output, options)`` for every mesh, one Dask task each, and write the summary.
 
     Parameters
     ----------
-    meshes : iterable of str
-        Paths, glob patterns or ``builtin:NAME``.
-    out_dir : str or Path
-        Folder for ``NAME.modes.npz`` files and ``summary.csv`` (created).
+    task : callable
+        ``task(mesh, output, options) -> dict`` (:data:`Task`): the row of one mesh, with at least
+        :data:`BASE_FIELDS`.
+    meshes : sequence of str
+        The inputs, one task each.
+    outputs : sequence of str
+        The file each task writes (same length).
+    summary : str or Path
+        The CSV summary to write (one row per mesh).
     options : dict, optional
-        Keyword arguments of :func:`mesh_modes` (``voxel``, ``auto``, ``fix``, ``n_modes``, ...).
+        Handed to every task unchanged.
+    fields : sequence of str
+        The summary's columns.
+    what : str
+        What the outputs are, plural, for the interruption's message (``"mode files"``).
     scheduler : str, optional
         Address of a running ``dask.distributed`` scheduler; default: start a LocalCluster.
     n_workers : int, optional
@@ -291,8 +257,6 @@ def run_batch(meshes: Iterable[str], out_dir: str | Path, *, options: dict | Non
         Local workers as processes (default) or threads.
     progress : bool
         tqdm progress bar on stderr.
-    expand : bool
-        Expand ``meshes`` with :func:`expand_inputs` (``False``: they are already expanded paths).
 
     Returns
     -------
@@ -300,9 +264,11 @@ def run_batch(meshes: Iterable[str], out_dir: str | Path, *, options: dict | Non
 
     Raises
     ------
+    InputError
+        ``scheduler`` given without ``dask.distributed`` installed.
     BatchInterrupted
         Ctrl-C (a KeyboardInterrupt): the cluster is shut down and the summary written first; it
-        lists the mode files completed.
+        lists the files completed.
     """
     try:
         from dask.distributed import Client, LocalCluster, as_completed
@@ -311,19 +277,7 @@ def run_batch(meshes: Iterable[str], out_dir: str | Path, *, options: dict | Non
             raise InputError("--scheduler needs dask.distributed, which is not installed: "
                              "pip install 'sc_fem[batch]'") from None
         Client = None                                     # serial fallback, same rows and summary
-    meshes = expand_inputs(meshes) if expand else [str(m) for m in meshes]
-    if not meshes:
-        raise InputError("no meshes given")
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"output for several meshes must be a folder, got the file {out}")
-    out.mkdir(parents=True, exist_ok=True)
-    names = [output_name(m) for m in meshes]
-    dup = {n for n in names if names.count(n) > 1}
-    if dup:   # chair.obj and chair.stl would overwrite each other
-        names = [f"{Path(m).stem}.{Path(m).suffix.lstrip('.') or 'mesh'}.modes.npz" if n in dup else n
-                 for m, n in zip(meshes, names)]
-    outputs = [str(out / n) for n in names]
+    meshes, outputs, summary = list(meshes), list(outputs), Path(summary)
     opts = dict(options or {})
     t0 = time.perf_counter()
     before = {o: _stamp(o) for o in outputs}
@@ -332,16 +286,15 @@ def run_batch(meshes: Iterable[str], out_dir: str | Path, *, options: dict | Non
         bar = stage_bar("meshes (serial: dask not installed)", len(meshes), unit="mesh", enabled=progress, tick=1.0)
         try:
             for i, (m, o) in enumerate(zip(meshes, outputs)):     # loop over input meshes
-                rows[i] = precompute_one(m, o, opts)
+                rows[i] = task(m, o, opts)
                 bar.update(1)
         except KeyboardInterrupt:
             with _sigint_ignored():
-                raise _interrupted(rows, meshes, outputs, before, out) from None
+                raise _interrupted(rows, meshes, outputs, before, summary, fields, what) from None
         finally:
             bar.close()
-        summary = write_summary(rows, out / "summary.csv")
-        return BatchResult(rows=rows, summary=summary, seconds=time.perf_counter() - t0,
-                           scheduler="serial (dask not installed)")
+        return BatchResult(rows=rows, summary=write_summary(rows, summary, fields),
+                           seconds=time.perf_counter() - t0, scheduler="serial (dask not installed)")
     cluster = None
     if scheduler:
         client = Client(scheduler, timeout="20s")
@@ -353,7 +306,7 @@ def run_batch(meshes: Iterable[str], out_dir: str | Path, *, options: dict | Non
     interrupted = False
     bar = stage_bar("meshes", len(meshes), unit="mesh", enabled=progress, tick=1.0)
     try:
-        futures = [client.submit(precompute_one, m, o, opts, key=f"precompute-{i}-{Path(o).stem}", pure=False)
+        futures = [client.submit(task, m, o, opts, key=f"task-{i}-{Path(o).stem}", pure=False)
                    for i, (m, o) in enumerate(zip(meshes, outputs))]
         index = {f.key: i for i, f in enumerate(futures)}
         for fut in as_completed(futures):                 # loop over completed tasks
@@ -361,7 +314,7 @@ def run_batch(meshes: Iterable[str], out_dir: str | Path, *, options: dict | Non
             try:
                 rows[i] = fut.result()
             except Exception as exc:  # noqa: BLE001 - e.g. a worker killed by the OS
-                rows[i] = {**{k: "" for k in SUMMARY_FIELDS}, "mesh": meshes[i], "status": "error",
+                rows[i] = {**{k: "" for k in fields}, "mesh": meshes[i], "status": "error",
                            "seconds": 0.0, "error": f"task failed: {type(exc).__name__}: {exc}"}
             bar.update(1)
             bar.set_postfix_str(f"{Path(meshes[i]).name}: {rows[i]['status']}")
@@ -375,6 +328,6 @@ def run_batch(meshes: Iterable[str], out_dir: str | Path, *, options: dict | Non
             if cluster is not None:
                 cluster.close()
             if interrupted:
-                raise _interrupted(rows, meshes, outputs, before, out) from None
-    summary = write_summary(rows, out / "summary.csv")
-    return BatchResult(rows=rows, summary=summary, seconds=time.perf_counter() - t0, scheduler=address)
+                raise _interrupted(rows, meshes, outputs, before, summary, fields, what) from None
+    return BatchResult(rows=rows, summary=write_summary(rows, summary, fields),
+                       seconds=time.perf_counter() - t0, scheduler=address)

@@ -11,12 +11,11 @@ from .._validate import positive_int, positive_scalar
 from ..errors import InputError, MaterialError, ResolutionError
 from ..geometry.sampling import grid_counts
 from .cubes import voxel_index
+from .options import DEFAULT_RESOLUTION, MAX_RESOLUTION
 
-DEFAULT_RESOLUTION = 32
 SPACING_FRACTION = 0.125   # default sample spacing = pitch / 8
 _BYTES_PER_GRID_CELL = 6   # bool occupancy + int32 labels
 _BYTES_PER_SAMPLE = 160    # positions, weights, faces, temporaries
-_MAX_RESOLUTION = 100_000
 SNAP_CELLS = 0.01          # largest round-off (in cubes) absorbed by grid_for
 
 
@@ -34,8 +33,8 @@ def grid_for(bounds: np.ndarray, *, resolution: int | None = None, pitch: float 
         raise InputError("give resolution or pitch, not both")
     if pitch is None:
         res = positive_int(DEFAULT_RESOLUTION if resolution is None else resolution, "resolution")
-        if res > _MAX_RESOLUTION:
-            raise ResolutionError(f"resolution {res} is beyond any machine's memory (max {_MAX_RESOLUTION})")
+        if res > MAX_RESOLUTION:
+            raise ResolutionError(f"resolution {res} is beyond any machine's memory (max {MAX_RESOLUTION})")
         pitch = float(extent.max()) / res
     else:
         pitch = positive_scalar(pitch, "pitch")
@@ -45,9 +44,9 @@ def grid_for(bounds: np.ndarray, *, resolution: int | None = None, pitch: float 
     mag = np.maximum(np.abs(lo), np.abs(hi))
     tol = np.clip(8.0 * np.finfo(np.float32).eps * mag / pitch, 1e-9 * np.maximum(1.0, ratio), SNAP_CELLS)
     dims = np.maximum(1, np.ceil(ratio - tol)).astype(np.int64)
-    if np.any(dims > _MAX_RESOLUTION):
+    if np.any(dims > MAX_RESOLUTION):
         raise ResolutionError(f"pitch {pitch:g} gives a grid of {tuple(dims)} cubes: too fine "
-                              f"(at most {_MAX_RESOLUTION} along an axis)")
+                              f"(at most {MAX_RESOLUTION} along an axis)")
     return lo, float(pitch), dims
 
 
@@ -87,7 +86,7 @@ def estimate_bytes(vertices: np.ndarray, faces: np.ndarray, dims: np.ndarray, sp
     return int(np.prod(np.asarray(dims, dtype=float)) * _BYTES_PER_GRID_CELL + n * _BYTES_PER_SAMPLE)
 
 
-def _memory_guard(vertices, faces, bounds, dims, n_samples, budget, resolution) -> None:
+def _memory_guard(vertices, faces, bounds, dims, n_samples, budget) -> None:
     need = float(np.prod(dims.astype(float))) * _BYTES_PER_GRID_CELL + n_samples * _BYTES_PER_SAMPLE
     if need <= budget:
         return
@@ -102,7 +101,7 @@ def _memory_guard(vertices, faces, bounds, dims, n_samples, budget, resolution) 
     raise ResolutionError(
         f"a grid of {tuple(int(d) for d in dims)} cubes with {n_samples:,} samples needs about "
         f"{need / 2**30:.1f} GiB, more than the {budget / 2**30:.1f} GiB allowed; "
-        f"try resolution <= {lo} (currently {resolution or longest})")
+        f"try resolution <= {lo} (currently {longest})")
 
 
 def hash_samples(points: np.ndarray, masses: np.ndarray, values: dict[str, np.ndarray], origin: np.ndarray,

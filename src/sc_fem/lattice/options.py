@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from typing import Any, Mapping
 
 from .._validate import positive_int, positive_scalar
-from ..errors import InputError
+from ..errors import InputError, ResolutionError
 from .cubes import CONNECTIVITY
 
 FILLS = ("auto", "solid", "surface")
@@ -18,6 +18,8 @@ KEEPS = ("bodies", "largest", "all")
 TOPOLOGIES = ("pieces", "grid")
 STIFFNESS = ("moments", "fraction", "full")
 DEFAULT_SUBSAMPLES = 4     # n: n^3 inside-test samples per boundary cube
+DEFAULT_RESOLUTION = 32    # cubes along the longest axis when neither resolution nor pitch is given
+MAX_RESOLUTION = 100_000   # cubes along an axis beyond any machine's memory
 
 
 @dataclass(frozen=True, eq=False)
@@ -130,6 +132,9 @@ class VoxelOptions:
         for name in ("resolution", "n_samples"):
             if getattr(self, name) is not None:
                 norm[name] = positive_int(getattr(self, name), name)
+        if norm.get("resolution", 0) > MAX_RESOLUTION:
+            raise ResolutionError(f"resolution {norm['resolution']} is beyond any machine's memory "
+                                  f"(max {MAX_RESOLUTION})")
         for name in ("pitch", "mass", "spacing", "shell_thickness", "max_memory"):
             if getattr(self, name) is not None:
                 norm[name] = positive_scalar(getattr(self, name), name)

@@ -30,7 +30,7 @@ from .cubes import CubeModel
 from .grid import SPACING_FRACTION, _memory_guard, _point_cloud_pitch, _point_spacing, grid_for, hash_samples
 from .mass import _sample_material
 from .moments import FULL, valid_moments
-from .options import DEFAULT_SUBSAMPLES, FILLS, STIFFNESS, VoxelOptions  # noqa: F401 (re-exported)
+from .options import DEFAULT_RESOLUTION, DEFAULT_SUBSAMPLES, FILLS, STIFFNESS, VoxelOptions  # noqa: F401 (re-exported)
 from .pieces import _body_samples, _find_bodies, _keep
 
 DEFAULT_MATERIAL = Material(1.0e7, 0.30, 1000.0, "generic soft solid")
@@ -112,10 +112,11 @@ def _voxelize(mesh: Any, opts: VoxelOptions, bar: Any) -> CubeModel:
 
     bounds = np.array([vertices.min(axis=0), vertices.max(axis=0)])
     longest = float((bounds[1] - bounds[0]).max())
-    pitch = opts.pitch
-    if cloud and opts.resolution is None and pitch is None:
-        pitch = _point_cloud_pitch(vertices, bounds)
-    origin, pitch, dims = grid_for(bounds, resolution=opts.resolution, pitch=pitch)
+    pitch = opts.pitch            # else the resolution's (a point cloud's own without one)
+    if pitch is None:
+        pitch = (_point_cloud_pitch(vertices, bounds) if cloud and opts.resolution is None
+                 else longest / (opts.resolution or DEFAULT_RESOLUTION))
+    origin, pitch, dims = grid_for(bounds, pitch=pitch)
     grid = (origin, pitch, dims)
     spacing = pitch * SPACING_FRACTION if opts.spacing is None else opts.spacing
     thick = DEFAULT_SHELL_FRACTION * longest if opts.shell_thickness is None else opts.shell_thickness
@@ -130,7 +131,7 @@ def _voxelize(mesh: Any, opts: VoxelOptions, bar: Any) -> CubeModel:
         k_s, k_t = grid_counts(vertices, faces, spacing)
         est = int((k_s * k_t).sum())
     # boundary cubes (about 1.5 area / pitch^2 = est / 40) get n_sub^3 inside-test samples each
-    _memory_guard(vertices, faces, bounds, dims, est + est * opts.subsamples**3 // 32, budget, opts.resolution)
+    _memory_guard(vertices, faces, bounds, dims, est + est * opts.subsamples**3 // 32, budget)
     if cloud:       # each point stands for the area of a square of the typical point spacing
         surf = Samples(points=vertices, weight=np.full(len(vertices), _point_spacing(vertices) ** 2),
                        face=np.full(len(vertices), -1))
