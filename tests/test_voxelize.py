@@ -130,6 +130,32 @@ def test_solid_fill_of_closed_and_leaky_shells():
     assert sc_fem.voxelize(open_box, resolution=10).info["solid_parts"] == 1
 
 
+def test_a_leaky_solids_cut_cubes_carry_the_moments_of_their_inside_subcubes():
+    """A sphere with holes (a leaky solid, off the grid): every cube's 27 moments are the sum over its
+    inside sub-cubes (winding number > 1/2 at the sub-cube centre) of their box moments -- per cube,
+    in a loop, as the samples were once summed one by one."""
+    from sc_fem.geometry.inside import boundary_cone, winding_number
+    from sc_fem.lattice.moments import box_moments
+
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+    sphere.apply_translation([0.13, -0.07, 0.21])
+    sphere.update_faces(np.arange(len(sphere.faces)) % 37 != 0)        # 35 holes: leaky, still a solid
+    model = sc_fem.voxelize(sphere, resolution=6, fill="solid")
+    n = 4                                                              # the default sub-samples per edge
+    offs = (np.stack(np.meshgrid(*[np.arange(n)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5) / n
+    sub = box_moments(offs - 0.5 / n, 1.0 / n)
+    v, f = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+    cone = boundary_cone(v, f)
+    cut = 0
+    for c, got in zip(model.cells, model.moments):                     # loop over cubes: the oracle
+        w = winding_number(v, f, model.origin + model.pitch * (c + offs), cone)
+        want = sub[w > 0.5].sum(axis=0)
+        if 0 < (w > 0.5).sum() < len(offs):
+            cut += 1
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+    assert cut > 20
+
+
 def test_components_keep_and_connectivity():
     a = box_mesh([0.9, 0.9, 0.9])                      # cells 0..3 along each axis
     b = box_mesh([0.4, 0.4, 0.4], corner=(3, 0, 0))     # cells 12..13 along x, 0..1 along y, z

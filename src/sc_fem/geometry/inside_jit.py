@@ -8,7 +8,7 @@ count the same crossings. Without numba (the optional extra ``sc_fem[fast]``) th
 
 from __future__ import annotations
 
-from .._jit import compiled, prange
+from .._jit import compiled, compiled_parallel, prange
 
 
 def _edge_sign_py(ax, ay, bx, by, px, py):  # pragma: no cover - compiled
@@ -60,5 +60,5 @@ def _crossings_py(q, tri, lo, hi, size, nb, start, bin_face, out):  # pragma: no
         out[i] = acc
 
 
-crossings = compiled(_crossings_py)
-"""The compiled :func:`_crossings_py` (None without numba)."""
+crossings = compiled_parallel(_crossings_py)
+"""The compiled :func:`_crossings_py`, its points split over the cores (None without numba)."""

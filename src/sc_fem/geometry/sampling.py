@@ -16,6 +16,7 @@ Two surface samplers:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 
@@ -35,18 +36,34 @@ class Samples:
         1 for point-cloud samples.
     face : ndarray of int, shape (n,)
         Source face of each sample, -1 where there is none.
-    moments : ndarray, shape (n, 27), or None
-        Volume samples: each sample's share of its cube's moments (:mod:`sc_fem.lattice.moments`, in
-        units of the cube's volume), when known.
+    moments : ndarray, shape (k, 27), or None
+        Volume samples: what the samples ``moment_rows`` add to their cube's moments
+        (:mod:`sc_fem.lattice.moments`, in units of the cube's volume) beyond an even share. A cube's
+        moments are a full cube's (``FULL``) times its filled fraction (its samples' ``weight``
+        over ``pitch^3``) plus these; whole cubes and shells add nothing and are not listed, and a
+        cut cube's sub-samples list their sum on one of them.
+    moment_rows : ndarray of int, shape (k,), or None
+        The samples ``moments`` belong to (None with ``moments``).
     """
 
     points: np.ndarray
     weight: np.ndarray
     face: np.ndarray
     moments: np.ndarray | None = None
+    moment_rows: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.points)
+
+    @staticmethod
+    def concat(parts: Sequence["Samples"]) -> "Samples":
+        """The samples of ``parts``, one after the other (their given moments kept, rows shifted)."""
+        start = np.cumsum([0] + [len(q) for q in parts])
+        given = [(q.moments, q.moment_rows + s) for q, s in zip(parts, start) if q.moments is not None]
+        return Samples(np.vstack([q.points for q in parts]).reshape(-1, 3), np.concatenate([q.weight for q in parts]),
+                       np.concatenate([q.face for q in parts]).astype(np.int64),
+                       np.vstack([m for m, _ in given]) if given else None,
+                       np.concatenate([r for _, r in given]).astype(np.int64) if given else None)
 
 
 def _apex_frame(vertices: np.ndarray, faces: np.ndarray):

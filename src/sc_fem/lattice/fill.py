@@ -117,10 +117,10 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
             mom[at] -= excess.reshape(len(ocells), -1) @ box_moments(o_offs - 0.5 / n_ov, 1.0 / n_ov)
         vol = mom[:, 0] * pitch**3
         keep = vol > 1e-9 * pitch**3
-        pieces.append(Samples(origin + pitch * (bcells[keep] + 0.5), vol[keep],
-                              np.full(int(keep.sum()), -1, dtype=np.int64), mom[keep]))
-    full = volume_samples(interior, origin, pitch)
-    pieces.append(Samples(full.points, full.weight, full.face, np.tile(FULL / 8.0, (len(full), 1))))
+        n_kept = int(keep.sum())
+        pieces.append(Samples(origin + pitch * (bcells[keep] + 0.5), vol[keep], np.full(n_kept, -1, dtype=np.int64),
+                              mom[keep] - mom[keep][:, :1] * FULL, np.arange(n_kept)))    # beyond an even share
+    pieces.append(volume_samples(interior, origin, pitch))          # whole cubes: even shares, no moments
     if leaky.any():
         bcells = unique_cells(voxel_index(surf.points[leaky], origin, pitch, dims), dims)
         pts = origin + pitch * (bcells[:, None, :] + offs[None]).reshape(-1, 3)
@@ -128,8 +128,12 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
         if tight_part.any():        # not where a watertight part already counted the volume
             tf = parts.faces[tight_part[parts.label]]
             inside[inside] = crossing_number(vertices, tf, pts[inside]) < 0.5
-        sub_m = box_moments(offs - 0.5 / n_sub, 1.0 / n_sub)[np.tile(np.arange(len(offs)), len(bcells))[inside]]
-        pieces.append(Samples(pts[inside], np.full(int(inside.sum()), pitch**3 / n_sub**3),
-                              np.full(int(inside.sum()), -1, dtype=np.int64), sub_m))
-    return Samples(np.vstack([q.points for q in pieces]), np.concatenate([q.weight for q in pieces]),
-                   np.concatenate([q.face for q in pieces]), np.vstack([q.moments for q in pieces]))
+        # what each sub-cube adds beyond an even share, summed over a cell's inside ones onto its first
+        inside_cq = inside.reshape(len(bcells), len(offs))
+        uneven = box_moments(offs - 0.5 / n_sub, 1.0 / n_sub) - FULL / len(offs)          # (q, 27)
+        count = inside_cq.sum(axis=1)
+        has = count > 0
+        n_in = int(count.sum())
+        pieces.append(Samples(pts[inside], np.full(n_in, pitch**3 / n_sub**3), np.full(n_in, -1, dtype=np.int64),
+                              inside_cq[has].astype(np.float64) @ uneven, (np.cumsum(count) - count)[has]))
+    return Samples.concat(pieces)

@@ -106,7 +106,9 @@ def _memory_guard(vertices, faces, bounds, dims, n_samples, budget) -> None:
 
 def hash_samples(points: np.ndarray, masses: np.ndarray, values: dict[str, np.ndarray], origin: np.ndarray,
                  pitch: float, dims: np.ndarray, sums: dict[str, np.ndarray] | None = None,
-                 piece: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+                 piece: np.ndarray | None = None,
+                 row_sums: dict[str, tuple[np.ndarray, np.ndarray]] | None = None,
+                 ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
     """Hash samples to voxels; sum their masses and mass-average their values per voxel.
 
     Parameters
@@ -124,6 +126,9 @@ def hash_samples(points: np.ndarray, masses: np.ndarray, values: dict[str, np.nd
     piece : ndarray of int, shape (n,), optional
         Body of each sample: samples of different bodies in one voxel make separate cubes
         (returned as ``averages["piece"]``, int).
+    row_sums : dict of name -> (rows (k,) int, values (k, c)), optional
+        Quantities of a few samples ``rows`` to sum per voxel; returned in ``averages`` as (cubes, c)
+        arrays (zero where no such sample fell).
 
     Returns
     -------
@@ -144,6 +149,10 @@ def hash_samples(points: np.ndarray, masses: np.ndarray, values: dict[str, np.nd
         raise MaterialError("a cube received zero mass; check density/mass values")
     averages = {k: np.bincount(inv, weights=masses * v, minlength=len(uniq)) / cube_mass for k, v in values.items()}
     averages.update({k: np.bincount(inv, weights=v, minlength=len(uniq)) for k, v in (sums or {}).items()})
+    for k, (rows, vals) in (row_sums or {}).items():
+        at = inv[rows]
+        averages[k] = np.stack([np.bincount(at, weights=vals[:, j], minlength=len(uniq))   # loop over columns
+                                for j in range(vals.shape[1])], axis=1).reshape(len(uniq), vals.shape[1])
     cells = np.stack(np.unravel_index(uniq // n_p, dims), axis=1).astype(np.int64)
     if piece is not None:
         averages["piece"] = (uniq % n_p).astype(np.int64)

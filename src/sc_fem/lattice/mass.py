@@ -16,7 +16,6 @@ from ..geometry.sampling import Samples
 from ..material import resolve_field
 from .cubes import voxel_index
 from .fill import solid_fill
-from .moments import FULL
 from .options import VoxelOptions
 from .overlap import overlapping_cells
 
@@ -116,11 +115,7 @@ def _mass_samples(occupied: np.ndarray, surf: Samples, vertices, faces, grid, op
     empty = np.argwhere(occupied & ~filled)
     floor = Samples(origin + pitch * (empty + 0.5), np.full(len(empty), 0.5 * pitch**3 / n_sub**3),
                     np.full(len(empty), -1, dtype=np.int64))
-    smeared = np.r_[shell.weight, floor.weight][:, None] * FULL / pitch**3   # shells: spread over the cube
-    samples = Samples(np.vstack([solid.points, shell.points, floor.points]),
-                      np.r_[solid.weight, shell.weight, floor.weight],
-                      np.r_[solid.face, shell.face, floor.face].astype(np.int64),
-                      np.vstack([solid.moments if solid.moments is not None else np.zeros((0, 27)), smeared]))
+    samples = Samples.concat([solid, shell, floor])      # shells and floors: spread evenly over the cube
     return samples, parts_info, bool(shell_face.any()), int(len(empty))
 
 

@@ -4,6 +4,7 @@ components kept afterwards (``keep=``)."""
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 
 import numpy as np
@@ -81,15 +82,13 @@ def _body_samples(surf: Samples, vertices, faces, grid, opts: VoxelOptions, thic
         sb = owner[tuple(voxel_index(smp.points, origin, pitch, dims).T)]
         if np.any(sb < 0):                                       # cannot happen: cells lie in their body's box
             raise RuntimeError("a mass sample fell outside its body's cells")
-        out.append(Samples(smp.points, smp.weight, np.where(smp.face >= 0, fsel[np.maximum(smp.face, 0)], -1),
-                           smp.moments))
+        out.append(dataclasses.replace(smp, face=np.where(smp.face >= 0, fsel[np.maximum(smp.face, 0)], -1)))
         body.append(sb)
         shells |= sh
         for key, v in {**c, **pinfo}.items():
             counts[key] = counts.get(key, 0) + v
     parts_info = {key: counts.pop(key) for key in ("parts", "solid_parts", "shell_parts") if key in counts}
-    samples = Samples(np.vstack([q.points for q in out]), np.concatenate([q.weight for q in out]),
-                      np.concatenate([q.face for q in out]), np.vstack([q.moments for q in out]))
+    samples = Samples.concat(out)
     return samples, np.concatenate(body), parts_info, shells, counts
 
 

@@ -149,12 +149,14 @@ def _voxelize(mesh: Any, opts: VoxelOptions, bar: Any) -> CubeModel:
     E, nu, rho, m = _sample_material(samples, surf, len(faces), youngs, poisson, density, opts)
 
     # ---- hash samples to voxels and accumulate (vectorized: unique + bincount); one cube per body and voxel
+    # the moments: each cube's even share (FULL x its filled fraction) plus what its cut samples add
+    rows = np.zeros(0, np.int64) if samples.moment_rows is None else samples.moment_rows
+    given = np.zeros((0, 27)) if samples.moments is None else samples.moments
     cells, cube_mass, avg = hash_samples(samples.points, m, {"E": E, "nu": nu, "rho": rho}, origin, pitch, dims,
-                                         sums={"volume": samples.weight,
-                                               **{f"m{k}": samples.moments[:, k] for k in range(27)}},
-                                         piece=sample_body)
+                                         sums={"volume": samples.weight}, piece=sample_body,
+                                         row_sums={"uneven": (rows, given)})
     volume = avg["volume"]                             # filled volume per cube, model units^3
-    moments = np.stack([avg[f"m{k}"] for k in range(27)], axis=1)
+    moments = (volume / pitch**3)[:, None] * FULL + avg["uneven"]
     fraction = np.clip(volume / pitch**3, 0.0, 1.0)
     full = _full_within_roundoff(moments, origin, pitch, dims)
     moments[full], fraction[full] = FULL, 1.0
