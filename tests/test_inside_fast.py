@@ -80,6 +80,40 @@ def test_compiled_and_numpy_crossings_agree_point_for_point(rng):
                                   crossing_number(v, f, q, kernel="numpy", max_pairs=5000))
 
 
+def test_surface_grid_samples_compiled_numpy_and_a_loop_agree(rng):
+    """The stratified surface samples: compiled kernel, numpy path and a face-by-face loop (the
+    oracle) give the same points, weights and faces; the weights sum to the area."""
+    from sc_fem.geometry.sampling import _apex_frame, surface_grid_samples
+
+    mesh = _overlapping_solids()
+    v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    f = np.vstack([f, [[0, 0, 1]]])                                   # a face of zero area: no samples
+    spacing = 0.37 * float(np.ptp(v, axis=0).max()) / 20
+    got = surface_grid_samples(v, f, spacing, kernel="numpy")
+    A, B, C = _apex_frame(v, f)
+    pts, w, face = [], [], []
+    for k in range(len(f)):                                            # loop over faces: the oracle
+        area = 0.5 * np.linalg.norm(np.cross(v[f[k, 1]] - v[f[k, 0]], v[f[k, 2]] - v[f[k, 0]]))
+        if area == 0:
+            continue
+        ks = max(1, int(np.ceil(max(np.linalg.norm(B[k] - A[k]), np.linalg.norm(C[k] - A[k])) / spacing)))
+        kt = max(1, int(np.ceil(np.linalg.norm(C[k] - B[k]) / spacing)))
+        for i in range(ks):
+            for j in range(kt):
+                s, t = (i + 0.5) / ks, (j + 0.5) / kt
+                pts.append(A[k] + s * (B[k] - A[k]) + s * t * (C[k] - B[k]))
+                w.append(2 * area * s / (ks * kt))
+                face.append(k)
+    np.testing.assert_allclose(got.points, pts, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(got.weight, w, rtol=1e-12)
+    np.testing.assert_array_equal(got.face, face)
+    assert got.weight.sum() == pytest.approx(mesh.area, rel=1e-12)
+    if numba_available():
+        fast = surface_grid_samples(v, f, spacing, kernel="numba")
+        for a, b in ((fast.points, got.points), (fast.weight, got.weight), (fast.face, got.face)):
+            np.testing.assert_array_equal(a, b)
+
+
 def test_piece_integrals_match_a_loop_oracle_and_the_compiled_kernel(rng):
     origin, pitch = np.array([1.0, -2.0, 0.5]), 0.3
     cells = rng.integers(0, 6, (40, 3))

@@ -20,7 +20,9 @@ from typing import Sequence
 
 import numpy as np
 
+from .._jit import choose_kernel
 from ..errors import MeshError
+from . import sampling_jit
 
 
 @dataclass(frozen=True, eq=False)
@@ -79,20 +81,40 @@ def _apex_frame(vertices: np.ndarray, faces: np.ndarray):
 
 def grid_counts(vertices: np.ndarray, faces: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:
     """Per-face grid sizes (k_s, k_t) of :func:`surface_grid_samples` (cheap; for memory estimates)."""
-    A, B, C = _apex_frame(vertices, faces)
+    return _counts(*_apex_frame(vertices, faces), spacing)
+
+
+def _counts(A: np.ndarray, B: np.ndarray, C: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`grid_counts` of the faces' apex frames."""
     long_edge = np.maximum(np.linalg.norm(B - A, axis=1), np.linalg.norm(C - A, axis=1))
     k_s = np.maximum(1, np.ceil(long_edge / spacing)).astype(np.int64)
     k_t = np.maximum(1, np.ceil(np.linalg.norm(C - B, axis=1) / spacing)).astype(np.int64)
     return k_s, k_t
 
 
-def surface_grid_samples(vertices: np.ndarray, faces: np.ndarray, spacing: float) -> Samples:
+def surface_grid_samples(vertices: np.ndarray, faces: np.ndarray, spacing: float, kernel: str = "auto") -> Samples:
     """Stratified samples with every surface point within ``spacing`` of a sample.
 
     With apex A opposite the shortest edge BC, sample (i, j) sits at
     ``A + s (B - A) + s t (C - B)`` with ``s = (i + 1/2)/k_s``, ``t = (j + 1/2)/k_t``; the
     Jacobian of this map is ``2 * area * s``, which is the weight each sample carries.
     Faces of zero area carry no material and get no samples.
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (n, 3)
+        Model units.
+    faces : ndarray of int, shape (m, 3)
+    spacing : float
+        Largest distance from a surface point to its nearest sample, model units.
+    kernel : {"auto", "numba", "numpy"}
+        The compiled kernel (:mod:`sc_fem.geometry.sampling_jit`, with numba) or the numpy path;
+        both give the same samples.
+
+    Returns
+    -------
+    Samples
+        Points (model units), weights (the area each stands for, model units^2) and faces.
     """
     area = 0.5 * np.linalg.norm(np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]],
                                          vertices[faces[:, 2]] - vertices[faces[:, 0]]), axis=1)
@@ -101,8 +123,13 @@ def surface_grid_samples(vertices: np.ndarray, faces: np.ndarray, spacing: float
     if len(fidx) == 0:
         raise MeshError("every face has zero area: nothing to sample")
     A, B, C = _apex_frame(vertices, faces[fidx])
-    k_s, k_t = grid_counts(vertices, faces[fidx], spacing)
+    k_s, k_t = _counts(A, B, C, spacing)
     counts = k_s * k_t
+    if choose_kernel(kernel) == "numba":
+        n = int(counts.sum())
+        pts, w, face = np.empty((n, 3)), np.empty(n), np.empty(n, np.int64)
+        sampling_jit.grid_samples(A, B, C, area[fidx], k_s, k_t, np.cumsum(counts) - counts, pts, w, face)
+        return Samples(points=pts, weight=w, face=fidx[face])
     face = np.repeat(np.arange(len(fidx)), counts)
     local = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
     i, j = np.divmod(local, k_t[face])

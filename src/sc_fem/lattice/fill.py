@@ -81,9 +81,6 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
         tight_interior, interior = interior[in_tight], interior[~in_tight]
         # an untouched cube inside k intersecting closed parts is counted k times by the columns
         multiple = np.clip(np.rint(w_interior[in_tight]) - 1.0, 0.0, None)
-        tri = vertices[parts.faces[surf.face[tight]]]
-        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-        n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
         pts = surf.points[tight]
         # all cubes of the columns' solid, so that the column sums telescope to the exact volume
         bcells = np.vstack([np.argwhere(region & occupied), tight_interior])
@@ -98,12 +95,15 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
         eps = 1e-6 * float(np.linalg.norm(np.ptp(vertices, axis=0)))
         # only samples in cubes that two parts' bounding boxes cover can lie inside another part
         cover = bbox_cover(vertices, parts, tight_part, origin, pitch, dims)
-        idx = voxel_index(pts, origin, pitch, dims)
-        maybe = np.flatnonzero(cover[tuple(idx.T)] >= 2)
         buried = np.zeros(len(pts), dtype=bool)
-        # just inside its own part, a sample sees winding number 1, or more where another part
-        # overlaps (this also catches coplanar faces of parts resting flush on one another)
-        buried[maybe] = crossing_number(vertices, tf, pts[maybe] - eps * n[maybe]) >= 1.5
+        if cover.max(initial=0) >= 2:
+            maybe = np.flatnonzero(cover[tuple(voxel_index(pts, origin, pitch, dims).T)] >= 2)
+            tri = vertices[parts.faces[surf.face[tight][maybe]]]
+            n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+            n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
+            # just inside its own part, a sample sees winding number 1, or more where another part
+            # overlaps (this also catches coplanar faces of parts resting flush on one another)
+            buried[maybe] = crossing_number(vertices, tf, pts[maybe] - eps * n) >= 1.5
         if buried.any():
             # sub-cube spacing about 1/256 of the grid's longest side, whatever the resolution
             n_ov = max(n_sub, -(-OVERLAP_SAMPLES_PER_SIDE // int(dims.max())))
