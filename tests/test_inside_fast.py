@@ -114,6 +114,21 @@ def test_surface_grid_samples_compiled_numpy_and_a_loop_agree(rng):
             np.testing.assert_array_equal(a, b)
 
 
+def test_voxel_index_compiled_and_numpy_agree_on_and_off_the_grid(rng):
+    """Cells of points: the compiled kernel and the numpy path agree point for point, on cell
+    faces, on the grid's upper faces (the last cell) and outside it (clipped)."""
+    from sc_fem.lattice.topology import voxel_index
+
+    origin, pitch, dims = np.array([-1.0, 0.5, -2.0]), 0.125, np.array([16, 8, 40])
+    p = origin + pitch * dims * rng.uniform(-0.2, 1.2, (50_000, 3))
+    p[:2000] = origin + pitch * rng.integers(0, 41, (2000, 3))          # on cell faces, upper ones too
+    want = np.clip(np.floor((p - origin) / pitch).astype(np.int64), 0, dims - 1)
+    np.testing.assert_array_equal(voxel_index(p, origin, pitch, dims, kernel="numpy"), want)
+    if numba_available():
+        np.testing.assert_array_equal(voxel_index(p, origin, pitch, dims, kernel="numba"), want)
+        np.testing.assert_array_equal(voxel_index(p[:10], origin, pitch, dims, kernel="numba"), want[:10])
+
+
 def test_piece_integrals_match_a_loop_oracle_and_the_compiled_kernel(rng):
     origin, pitch = np.array([1.0, -2.0, 0.5]), 0.3
     cells = rng.integers(0, 6, (40, 3))

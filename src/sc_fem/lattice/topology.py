@@ -10,6 +10,9 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
+from .._jit import choose_kernel
+from . import topology_jit
+
 HEX_CORNERS = np.array(
     [[0, 0, 0], [0, 0, 1], [0, 1, 0], [1, 0, 0], [0, 1, 1], [1, 0, 1], [1, 1, 0], [1, 1, 1]],
     dtype=np.int64,
@@ -25,13 +28,27 @@ NEIGHBOURS = np.array([(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c i
 an edge (18-connected) or a corner (26-connected)."""
 
 
-def voxel_index(points: np.ndarray, origin: np.ndarray, pitch: float, dims: np.ndarray) -> np.ndarray:
+VOXEL_INDEX_COMPILED_FROM = 4096
+"""Points from which :func:`voxel_index` takes the compiled kernel (fewer: numpy, no call overhead)."""
+
+
+def voxel_index(points: np.ndarray, origin: np.ndarray, pitch: float, dims: np.ndarray,
+                kernel: str = "auto") -> np.ndarray:
     """Lattice cell (i, j, k) of each point, shape (n, 3) int64, clipped into the grid.
 
     Cells are half-open ``[lo, lo + pitch)``, except that points on the upper faces of the grid
-    belong to the last cell.
+    belong to the last cell. ``kernel``: the compiled one (:mod:`sc_fem.lattice.topology_jit`,
+    with numba, from :data:`VOXEL_INDEX_COMPILED_FROM` points) or numpy; both give the same cells.
     """
-    return np.clip(np.floor((points - origin) / pitch).astype(np.int64), 0, np.asarray(dims) - 1)
+    hi = np.asarray(dims, dtype=np.int64) - 1
+    p = np.asarray(points)
+    compiled = choose_kernel(kernel) == "numba" and (kernel == "numba" or len(p) >= VOXEL_INDEX_COMPILED_FROM)
+    if compiled and p.ndim == 2 and p.shape[1] == 3:
+        out = np.empty((len(p), 3), np.int64)
+        topology_jit.cells(np.ascontiguousarray(p, dtype=np.float64), np.asarray(origin, dtype=np.float64).reshape(3),
+                           float(pitch), np.broadcast_to(hi, 3).copy(), out)
+        return out
+    return np.clip(np.floor((p - origin) / pitch).astype(np.int64), 0, hi)
 
 
 def unique_cells(cells: np.ndarray, dims: np.ndarray) -> np.ndarray:
