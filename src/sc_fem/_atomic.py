@@ -11,6 +11,8 @@ import tempfile
 from pathlib import Path
 from typing import Iterator
 
+import numpy as np
+
 from .errors import OutputError
 
 
@@ -42,8 +44,6 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
 
 def save_npz_atomic(path: str | os.PathLike, **arrays) -> Path:
     """``np.savez_compressed`` to ``path`` atomically; returns the final path."""
-    import numpy as np
-
     path = Path(path)
     with atomic_path(path, suffix=".npz") as tmp:
         with open(tmp, "wb") as fh:

@@ -6,6 +6,8 @@ numpy fallback that gives the same result; numba is the optional extra ``sc_fem[
 
 from __future__ import annotations
 
+from contextlib import nullcontext
+
 try:  # optional: every compiled kernel has a numpy fallback
     import numba
 except ImportError:  # pragma: no cover - exercised when numba is absent
@@ -60,7 +62,5 @@ def blas_single_threaded():
     try:
         from threadpoolctl import threadpool_limits
     except ImportError:  # pragma: no cover - exercised when threadpoolctl is absent
-        from contextlib import nullcontext
-
         return nullcontext()
     return threadpool_limits(limits=1, user_api="blas")

@@ -20,6 +20,7 @@ from functools import cache, partial
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
+from scipy.sparse.linalg import ArpackNoConvergence, eigsh
 
 from .._validate import as_float_array, as_indices, positive_scalar
 from ..fem.assemble import Assembler
@@ -41,8 +42,6 @@ def max_frequency(K: sp.spmatrix, M_lumped: sp.spmatrix | np.ndarray, *, tol: fl
     Uses ARPACK (``eigsh``, largest algebraic eigenvalue of ``D^-1/2 K D^-1/2``), falling back
     to a power iteration if ARPACK does not converge.
     """
-    from scipy.sparse.linalg import ArpackNoConvergence, eigsh
-
     d = np.asarray(M_lumped.diagonal() if sp.issparse(M_lumped) else M_lumped, dtype=float)
     if np.any(d <= 0):
         raise SolverError("the lumped mass has non-positive entries; cannot compute omega_max")

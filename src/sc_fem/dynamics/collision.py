@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
 
 from ..errors import InputError
 from ..lattice.cubes import HEX_CORNERS, CubeModel
@@ -178,8 +179,6 @@ def lattice_surface(model: CubeModel) -> np.ndarray:
 def node_bodies(model: CubeModel) -> np.ndarray:
     """The mechanical body of every lattice node, shape (m,): nodes linked through cubes (cubes
     that share any node move together)."""
-    from scipy.sparse.csgraph import connected_components
-
     n = model.n_cubes
     rows = np.repeat(np.arange(n), 8)
     G = sp.csr_matrix((np.ones(8 * n), (rows, model.hexes.ravel())), shape=(n, model.n_nodes))

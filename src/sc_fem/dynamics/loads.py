@@ -30,6 +30,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.spatial import cKDTree
 
 from .._validate import as_float_array, as_indices, as_points
 from ..errors import InputError
@@ -240,8 +241,6 @@ def impulse_nodes(model: CubeModel, points, vertices, impulses, *, radius: float
     -------
     ndarray, shape (m, 3)
     """
-    from scipy.spatial import cKDTree
-
     pts = as_points(points, "points")
     idx = as_indices(vertices, len(pts), "impulse vertices")
     J = as_float_array(impulses, "impulses", (len(idx), 3))

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import time as _time
 from dataclasses import dataclass
 
 import numpy as np
@@ -69,8 +70,6 @@ def stability_sweep(model: CubeModel, substep_sizes, *, duration: float = 0.5, f
     -------
     list of StabilityRow
     """
-    import time as _time
-
     duration = positive_scalar(duration, "duration")
     if frame_dt is not None:
         frame_dt = positive_scalar(frame_dt, "frame_dt")

@@ -21,6 +21,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
+from scipy.sparse.linalg import splu
 
 from ..errors import InputError, SolverError
 
@@ -125,8 +126,6 @@ class Factorization:
             except ValueError as exc:
                 raise SolverError(_singular_message(n, f"singular or not positive definite ({exc})")) from None
         else:
-            from scipy.sparse.linalg import splu
-
             try:
                 self._f = splu(A.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                                options={"SymmetricMode": True})

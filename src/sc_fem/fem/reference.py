@@ -10,12 +10,14 @@ displacement of a clamped case under gravity. These are optional dependencies (t
 
 from __future__ import annotations
 
+import importlib
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.linalg import LinearOperator, eigsh
 
 from ..errors import InputError, MeshError, ScFemError
 from ..geometry.inside import mesh_parts
@@ -26,8 +28,6 @@ from .linsolve import factorize
 
 
 def _require(module: str):
-    import importlib
-
     try:
         return importlib.import_module(module)
     except ImportError:
@@ -174,8 +174,6 @@ def uniform_field(basis, c: np.ndarray) -> np.ndarray:
 
 
 def _free_free(K, M, n_modes: int, shift: float) -> np.ndarray:
-    from scipy.sparse.linalg import LinearOperator, eigsh
-
     A = (K + shift * M).tocsc()
     fac = factorize(A)
     op = LinearOperator(A.shape, matvec=fac.solve, dtype=float)

@@ -8,7 +8,9 @@ Cubes is that broken meshes need no repair.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
+import io
 import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -150,9 +152,6 @@ def _read_file(path: Path) -> tuple[np.ndarray, np.ndarray, dict]:
         except Exception as exc:  # noqa: BLE001 - third-party readers raise anything
             errors.append(f"trimesh: {type(exc).__name__}: {exc}")
     try:
-        import contextlib
-        import io
-
         import meshio
 
         # meshio prints to stdout and may call sys.exit() on malformed files: contain both

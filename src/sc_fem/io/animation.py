@@ -35,11 +35,12 @@ keys they do not know.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import scipy.sparse as sp
 from numpy.typing import ArrayLike
 
 from .._atomic import save_npz_atomic
@@ -175,7 +176,6 @@ def _read_lattice(path, data, n_vertices: int, n_frames: int) -> LatticeTrack | 
     if len(present) != len(_LATTICE_KEYS):
         raise FileFormatError(f"{path}: incomplete lattice arrays (missing "
                               f"{sorted(set(_LATTICE_KEYS) - set(present))})")
-    import scipy.sparse as sp
 
     ni, rest, disp = data["lattice_node_index"], data["lattice_rest"], data["lattice_displacements"]
     q = len(rest)
@@ -351,8 +351,6 @@ def resample_animation(anim: Animation, fps: float, *, duration: float | None = 
     InputError
         ``fps`` or ``duration`` not positive and finite, or ``duration`` beyond the animation's.
     """
-    from dataclasses import replace
-
     fps = positive_scalar(fps, "fps")
     t = np.asarray(anim.times, dtype=float)
     whole = float(t[-1] - t[0])

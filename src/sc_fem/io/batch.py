@@ -193,21 +193,6 @@ def _no_logging(quiet: bool):
         logging.disable(previous)
 
 
-def expand_inputs(patterns) -> list[str]:
-    """Meshes from paths, glob patterns (``assets/*.obj``) and ``builtin:NAME``; order kept, no duplicates
-    (one path or pattern on its own is one argument, not a sequence of characters)."""
-    if isinstance(patterns, (str, os.PathLike)):
-        patterns = [patterns]
-    out: list[str] = []
-    for p in patterns:                                     # loop over command-line arguments
-        s = str(p)
-        hits = sorted(glob.glob(s)) if any(c in s for c in "*?[") and not s.startswith("builtin:") else [s]
-        if not hits:
-            raise InputError(f"no file matches {s!r}")
-        out += [h for h in hits if h not in out]
-    return out
-
-
 def write_summary(rows: list[dict], path, fields: Sequence[str] = BASE_FIELDS) -> Path:
     """Write the summary rows as CSV atomically (the columns ``fields``; other keys are left out)."""
     buf = io.StringIO()

@@ -14,6 +14,7 @@ import hashlib
 import os
 import subprocess
 import sys
+from importlib.metadata import version
 from pathlib import Path
 
 from ..errors import RenderError
@@ -38,8 +39,6 @@ def _cache_file() -> Path | None:
     if os.environ.get("SC_FEM_NO_RENDER_CACHE"):
         return None
     try:
-        from importlib.metadata import version
-
         vtk = version("vtk")
     except Exception:                       # noqa: BLE001 - no metadata: do not cache
         return None

@@ -23,6 +23,9 @@ The lattice of a run (:func:`write_xdmf_series`, ``sc-fem simulate ... -o run.xd
 
 from __future__ import annotations
 
+import os
+import shutil
+import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -250,10 +253,6 @@ def write_xdmf_series(path: str | Path, rest: ArrayLike, faces: ArrayLike, times
     OutputError
         The folder cannot be written.
     """
-    import os
-    import shutil
-    import tempfile
-
     path = Path(path)
     rest = np.asarray(rest, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)

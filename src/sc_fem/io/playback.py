@@ -8,6 +8,7 @@ vertex animation (``.mp4``, ``.gif`` or a folder of PNG frames), or plays it in 
 from __future__ import annotations
 
 import os
+import time
 import warnings
 from pathlib import Path
 from typing import Any, Sequence
@@ -107,8 +108,6 @@ def play_modes(modes: Any, output: str | Path | None = None, *,
 
 def _window(player: Any, duration: float, fps: float, exaggerate: float) -> None:  # pragma: no cover - display
     """Play in an interactive pyvista window for ``duration`` seconds of wall time."""
-    import time
-
     import pyvista as pv
 
     b = player.basis

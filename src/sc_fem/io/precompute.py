@@ -16,6 +16,8 @@ import warnings
 from pathlib import Path
 from typing import Any, Iterable
 
+import numpy as np
+
 from ..errors import InputError, ScFemError, ScFemWarning
 from ..modes.auto import format_resolution_table, modal_converged
 from ..modes.modal import modal
@@ -169,8 +171,6 @@ def precompute_summary(basis: Any, timings: dict) -> str:
     str
         Aligned ``key  value`` lines, then :meth:`ModalBasis.summary` (the frequency table).
     """
-    import numpy as np
-
     e = basis.eigen
     rows = [
         ("source", f"{basis.source}  (sha256 {basis.source_sha256[:12]})"),

@@ -20,6 +20,7 @@ with float32). :func:`read_viewer_glb` gives the ``.glb`` a page carries.
 from __future__ import annotations
 
 import base64
+import binascii
 import html
 import json
 import re
@@ -165,8 +166,6 @@ def read_viewer_glb(page) -> bytes:
     FileFormatError
         ``page`` is not such a page, or its payload is damaged.
     """
-    import binascii
-
     text = Path(page).read_text(encoding="utf-8")
     config = re.search(r'<script type="application/json" id="sc-config">(.*?)</script>', text, re.DOTALL)
     glb = re.search(r'<script type="application/octet-stream" id="sc-glb">(.*?)</script>', text, re.DOTALL)

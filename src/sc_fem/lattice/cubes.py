@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.spatial import cKDTree
 
 from .._validate import as_float_array, check_material, positive_scalar
 from ..errors import InputError
@@ -321,7 +322,6 @@ class CubeModel:
         points = np.asarray(points, dtype=float).reshape(-1, 3)
         if self.sites is None or not len(self.sites):
             return np.zeros(len(points), np.int64)
-        from scipy.spatial import cKDTree
 
         _, i = cKDTree(self.sites).query(points)
         return self.site_piece[i]

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from .._jit import choose_kernel
 from . import topology_jit
@@ -97,9 +99,6 @@ def nodes_and_hexes(cells: np.ndarray, dims: np.ndarray, piece: np.ndarray) -> t
 def piece_labels(cells: np.ndarray, dims: np.ndarray, connectivity: str, piece: np.ndarray) -> tuple[np.ndarray, int]:
     """Connected components of cubes of the same body that are neighbours (graph on the sorted
     (cell, body) keys; labels in order of each component's first cube, as ``ndimage.label``)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     n_p = int(piece.max()) + 1
     dims = np.asarray(dims, dtype=np.int64)
     key = np.ravel_multi_index(cells.T, dims) * n_p + piece            # sorted (from_cells sorts)
