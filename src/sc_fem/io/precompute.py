@@ -114,14 +114,9 @@ def run_batch(meshes: Iterable[str], out_dir: str | Path, *, options: dict | Non
         Folder for ``NAME.modes.npz`` files and ``summary.csv`` (created).
     options : dict, optional
         Keyword arguments of :func:`mesh_modes` (``voxel``, ``auto``, ``fix``, ``n_modes``, ...).
-    scheduler : str, optional
-        Address of a running ``dask.distributed`` scheduler; default: start a LocalCluster.
-    n_workers : int, optional
-        Local workers (default ``min(len(meshes), cpu count)``), one thread each.
-    processes : bool
-        Local workers as processes (default) or threads.
-    progress : bool
-        tqdm progress bar on stderr.
+    scheduler, n_workers, processes, progress
+        The cluster and the progress bar, as :func:`~sc_fem.io.batch.run_tasks` takes them (default:
+        a local cluster of ``min(len(meshes), cpu count)`` worker processes, a bar on stderr).
     expand : bool
         Expand ``meshes`` with :func:`~sc_fem.io.batch.expand_inputs` (``False``: they are already
         expanded paths).
