@@ -440,3 +440,24 @@ def test_an_open_sheet_gets_multiscale_cubes_near_kirchhoffs_free_plate():
     np.testing.assert_allclose(q3.frequencies[:4], plate, rtol=0.15)
     np.testing.assert_allclose(q3.frequencies[:4] / q3.frequencies[0], plate / plate[0], rtol=0.01)
     assert q1.frequencies[0] > 3 * plate[0]
+
+
+def test_an_open_sheets_walls_are_its_shell_thickness():
+    """``"auto"`` takes an open sheet's walls as its shell's thickness: ``2 V / A`` counts one side of
+    a sheet and gives twice it. A 1 m sheet with a 15 mm shell (1/67 of its size) is thin-walled; at
+    twice that (30 mm, 1/33) it would not be. A closed plate of that thickness measures 15 mm."""
+    import trimesh
+
+    from sc_fem.fem.choice import choose_element
+    from sc_fem.lattice.walls import thinnest_walls
+
+    sheet = trimesh.Trimesh(vertices=[[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], faces=[[0, 1, 2], [0, 2, 3]])
+    scene = Scene.from_mesh(sheet, resolution=8, shell_thickness=0.015, **STEEL)
+    assert scene.model.info["solid_parts"] == 0
+    assert thinnest_walls(scene.model, scene.mesh.vertices, scene.faces) == pytest.approx(0.030, rel=0.05)
+    element, reason, _ = choose_element(scene)
+    assert element == "q3" and "15 mm, 1/67" in reason, reason
+    plate = trimesh.creation.box([1.0, 1.0, 0.015])
+    solid = Scene.from_mesh(plate, resolution=8, **STEEL)
+    assert thinnest_walls(solid.model, solid.mesh.vertices, solid.faces) == pytest.approx(0.015, rel=0.05)
+
