@@ -1,18 +1,23 @@
 """The automatic eigensolver choice against what each solver takes, on shapes users bring, in one run.
 
 Usage: python benchmarks/auto_choice.py [--quick | --larger] [--repeat R] [--only NAME ...]
+       python benchmarks/auto_choice.py --from-json out/FILE.json ... [--fit]
 
-Per shape and resolution (free-free, 16 pairs: 10 elastic modes and the 6 rigid ones): the fill
-analysis of ``K - sigma M`` (:func:`sc_fem.fem.options.fill_analysis`, CHOLMOD's ordering and the
-column counts of ``L``), the times :func:`sc_fem.fem.options.predicted_seconds` predicts from it
-(shift-invert; also the power law in ``n`` alone, the prediction before the fill analysis) and for
-LOBPCG, then both solvers timed ``R`` times each, interleaved (``solve_eigen(method="shift-invert")``
-with CHOLMOD, ``"lobpcg"`` with the lattice multigrid as ``sc_fem.modal`` sets it up): the median,
-the spread (min-max), taken / predicted, which one ``"auto"`` picks and whether it was the faster.
-The shapes: compact solids (a cantilever, the bunny, spot), thin-walled ones (the chair, the
-armchair, a plate, an I-beam, a truss bridge in millimetres, the cable-stayed bridge) and many parts
-(the toy truck). Prints a Markdown table and the machine's load, writes
-``benchmarks/out/auto_choice.json`` and ``auto_choice.png`` (copied to ``docs/``).
+Per shape and resolution (free-free, 16 pairs: 10 elastic modes and the 6 rigid ones; the held
+cantilever 6 pairs): the fill analysis of ``K - sigma M`` (:func:`sc_fem.fem.options.fill_analysis`,
+CHOLMOD's ordering and the column counts of ``L``), the times
+:func:`sc_fem.fem.options.predicted_seconds` predicts from it for shift-invert (also the power law
+in ``n`` alone, the prediction before the fill analysis) and LOBPCG (and LOBPCG's iterations), then
+both solvers timed ``R`` times each, interleaved (``solve_eigen(method="shift-invert")`` with
+CHOLMOD, ``"lobpcg"`` with the lattice multigrid as ``sc_fem.modal`` sets it up): the median, the
+spread (min-max), taken / predicted, which one ``"auto"`` picks and whether it was the faster, each
+run's stages (set-up, solve, Rayleigh--Ritz) and iterations. The shapes: compact solids (the
+beam, the bunny, spot, the held cantilever of ``modes_speed.py``), thin-walled ones (the chair,
+the armchair, a plate, an I-beam, a truss bridge in millimetres, the cable-stayed bridge) and many
+parts (the toy truck). Prints a Markdown table, the counts within 1.5x, the repeats' spread and the
+machine's load, writes ``benchmarks/out/auto_choice.json`` (``--out``) and ``auto_choice.png``
+(copied to ``docs/``). ``--from-json`` re-predicts stored runs with the current model, and
+``--fit`` fits LOBPCG's model (:data:`sc_fem.fem.fill.LOBPCG_FILL_MODEL`) to them (:func:`fit`).
 """
 
 from __future__ import annotations
@@ -31,13 +36,18 @@ import numpy as np
 from _common import SHARED_MESHES, out_path, print_table, save_figure
 
 K_PAIRS = 16
+CANTILEVER = "cantilever"
+"""The 4 m x 1 m x 1 m bar of ``benchmarks/modes_speed.py``, one end held, 6 elastic pairs (the
+speed target's model: 139,656 free DOFs at resolution 88), the other shapes free-free, 16 pairs."""
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 
 
 def shapes(quick: bool, larger: bool = False):
     """``(label, kind, mesh, resolutions, scale)``: each shape at two resolutions, the first with
-    ``quick``, the second with ``larger``."""
+    ``quick``, the second with ``larger``. The held cantilever (:data:`CANTILEVER`) is solved for its
+    own pairs."""
     import sc_fem
+    import trimesh
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
     import shapes as sh
@@ -52,53 +62,76 @@ def shapes(quick: bool, larger: bool = False):
             ("truss (mm)", "thin", sh.truss_bridge_mm(), (64, 128), 1e-3),
             ("bridge", "thin, many parts", sc_fem.load_mesh("builtin:bridge"), (96, 128), 1.0),
             ("toy truck", "many parts", sh.toy_truck(), (64, 96), 1.0)]
+    bar = trimesh.creation.box(extents=(4.0, 1.0, 1.0))
+    bar.apply_translation((2.0, 0.5, 0.5))
+    out.append((CANTILEVER, "compact, held", bar, (88, 48), 1.0))       # 139,656 and 24,336 free DOFs
     return [(a, b, c, d[:1] if quick else d[1:] if larger else d, e) for a, b, c, d, e in out]
 
 
-def _timed(fn, info: dict) -> float | None:
-    """Seconds ``fn()`` takes (None when it fails); its result's ``info`` goes into ``info``."""
+def _timed(fn, info: dict, parts: list) -> float | None:
+    """Seconds ``fn()`` takes (None when it fails); its result's ``info`` goes into ``info``, and its
+    stages (set-up, solve, Rayleigh--Ritz, s) with LOBPCG's iterations and rounds are appended to ``parts``."""
     import sc_fem
 
     t0 = time.perf_counter()
     try:
-        info.update(fn().info)
+        res = fn()
     except sc_fem.SolverError as exc:
         print(f"    failed: {str(exc)[:100]}", file=sys.stderr)
         info["error"] = str(exc)[:200]
+        parts.append(None)
         return None
-    return time.perf_counter() - t0
+    took = time.perf_counter() - t0
+    info.update(res.info)
+    parts.append({**{s: float(v) for s, v in res.seconds.items()}, "total": took,
+                  **{f: res.info[f] for f in ("iterations", "rounds", "levels") if f in res.info}})
+    return took
 
 
 def measure(label: str, kind: str, mesh, r: int, scale: float, repeat: int) -> dict:
     """One shape at one resolution: the predictions, and both solvers timed ``repeat`` times."""
     import sc_fem
+    from sc_fem.fem.assemble import Assembler
     from sc_fem.fem.eigen import SHIFT_FRACTION, lambda_scale, shifted, solve_eigen
+    from sc_fem.fem.fill import lobpcg_block, lobpcg_iterations
     from sc_fem.fem.multigrid import lattice_aggregates
     from sc_fem.fem.options import choose_method, fill_analysis, predicted_seconds
     from sc_fem.fem.rigid import rigid_body_modes
     from sc_fem.fem.static import node_parts
 
     model = sc_fem.voxelize(mesh, resolution=r, scale=scale)
-    K, M = sc_fem.assemble(model)[:2]
+    k, free = (6, None) if label == CANTILEVER else (K_PAIRS, np.arange(3 * model.n_nodes))
+    if free is None:                                          # one end held
+        from sc_fem.lattice.boundary import fixed_dofs, fixed_nodes
+
+        asm = Assembler(model, "q1i", fixed_dofs=fixed_dofs(fixed_nodes(model, "x<min+1e-9")))
+        K, M, free = asm.stiffness(), asm.mass(), asm.free_dofs
+    else:
+        K, M = sc_fem.assemble(model)[:2]
     n = K.shape[0]
     analysis = fill_analysis(shifted(K, M, -SHIFT_FRACTION * lambda_scale(K, M)))
-    rec = {"shape": label, "kind": kind, "res": r, "dofs": n, "nnz": int(K.nnz), "load": os.getloadavg()[0],
-           "nnz_l": analysis.nnz_l if analysis else None, "gflop": analysis.flops / 1e9 if analysis else None,
-           "analysis_s": analysis.seconds if analysis else None,
-           "shift-invert_predicted": predicted_seconds("shift-invert", n, K_PAIRS, analysis),
-           "shift-invert_power_law": predicted_seconds("shift-invert", n, K_PAIRS),
-           "lobpcg_predicted": predicted_seconds("lobpcg", n, K_PAIRS, analysis),
-           "lobpcg_power_law": predicted_seconds("lobpcg", n, K_PAIRS),
-           "auto": choose_method(n, K.nnz, K_PAIRS, None, analysis)[0],
-           "auto_power_law": choose_method(n, K.nnz, K_PAIRS)[0]}
+    rec = {"shape": label, "kind": kind, "res": r, "dofs": n, "nnz": int(K.nnz), "k": k, "block": lobpcg_block(k),
+           "load": os.getloadavg()[0], "nnz_l": analysis.nnz_l if analysis else None,
+           "gflop": analysis.flops / 1e9 if analysis else None, "analysis_s": analysis.seconds if analysis else None,
+           "shift-invert_predicted": predicted_seconds("shift-invert", n, k, analysis),
+           "shift-invert_power_law": predicted_seconds("shift-invert", n, k),
+           "lobpcg_predicted": predicted_seconds("lobpcg", n, k, analysis),
+           "lobpcg_power_law": predicted_seconds("lobpcg", n, k),
+           "lobpcg_iterations_predicted": lobpcg_iterations(analysis) if analysis else None,
+           "auto": choose_method(n, K.nnz, k, None, analysis)[0],
+           "auto_power_law": choose_method(n, K.nnz, k)[0]}
     del analysis
     runs = {"shift-invert": [], "lobpcg": []}
-    near_null, agg = rigid_body_modes(model.nodes_m), lattice_aggregates(model, node_parts(model), np.arange(n))
+    parts = {"shift-invert": [], "lobpcg": []}
+    near_null = rigid_body_modes(model.nodes_m, free)
+    agg = lattice_aggregates(model, node_parts(model), free)
     info = {}
     for _ in range(repeat):                                   # interleaved: both see the same load
-        runs["shift-invert"].append(_timed(lambda: solve_eigen(K, M, K_PAIRS, method="shift-invert"), {}))
-        runs["lobpcg"].append(_timed(lambda: solve_eigen(K, M, K_PAIRS, method="lobpcg", near_null=near_null,
-                                                         aggregates=agg), info))
+        runs["shift-invert"].append(_timed(lambda: solve_eigen(K, M, k, method="shift-invert"), {},
+                                           parts["shift-invert"]))
+        runs["lobpcg"].append(_timed(lambda: solve_eigen(K, M, k, method="lobpcg", near_null=near_null,
+                                                         aggregates=agg), info, parts["lobpcg"]))
+    rec["shift-invert_parts"], rec["lobpcg_parts"] = parts["shift-invert"], parts["lobpcg"]
     rec["lobpcg_iterations"], rec["lobpcg_error"] = info.get("iterations"), info.get("error")
     for m, ts in runs.items():
         ok = [t for t in ts if t is not None]
@@ -111,17 +144,67 @@ def measure(label: str, kind: str, mesh, r: int, scale: float, repeat: int) -> d
     return rec
 
 
+def _analysis(rec: dict):
+    """The stored fill of a record as a :class:`~sc_fem.fem.fill.FillAnalysis` (None without one)."""
+    from sc_fem.fem.fill import FillAnalysis
+
+    return (FillAnalysis(n=rec["dofs"], nnz_l=rec["nnz_l"], flops=rec["gflop"] * 1e9, seconds=rec["analysis_s"])
+            if rec["nnz_l"] else None)
+
+
 def repredict(rec: dict) -> dict:
     """An earlier run's record with the predictions and choice of the current model (from its stored fill)."""
-    from sc_fem.fem.fill import FillAnalysis
+    from sc_fem.fem.fill import lobpcg_iterations
     from sc_fem.fem.options import choose_method, predicted_seconds
 
-    n = rec["dofs"]
-    a = (FillAnalysis(n=n, nnz_l=rec["nnz_l"], flops=rec["gflop"] * 1e9, seconds=rec["analysis_s"])
-         if rec["nnz_l"] else None)
-    return {**rec, "shift-invert_predicted": predicted_seconds("shift-invert", n, K_PAIRS, a),
-            "lobpcg_predicted": predicted_seconds("lobpcg", n, K_PAIRS, a),
-            "auto": choose_method(n, rec["nnz"], K_PAIRS, None, a)[0]}
+    n, k, a = rec["dofs"], rec.get("k", K_PAIRS), _analysis(rec)
+    return {**rec, "shift-invert_predicted": predicted_seconds("shift-invert", n, k, a),
+            "lobpcg_predicted": predicted_seconds("lobpcg", n, k, a),
+            "lobpcg_iterations_predicted": lobpcg_iterations(a) if a else None,
+            "auto": choose_method(n, rec["nnz"], k, None, a)[0]}
+
+
+def fit(records: list[dict]) -> dict:
+    """Fit :data:`sc_fem.fem.fill.LOBPCG_FILL_MODEL` to the LOBPCG runs of ``records`` (every converged
+    run, each record's fill) in three steps, each on what it predicts:
+
+    1. set-up: the runs' set-up + Rayleigh--Ritz seconds against ``n``, least squares (non-negative);
+    2. one iteration: the solve's seconds / iterations against the block's entries ``e = n * block``,
+       ``c * e * (e / 1e6) ** gamma``, least squares in log-log;
+    3. iterations (which the load does not change): ``q0`` and ``beta`` by least squares of
+       log(iterations taken / predicted) over the shapes (``iterations`` and ``cap`` kept).
+
+    Prints each step and returns the fitted constants (also set in the model for the table)."""
+    from scipy.optimize import minimize, nnls
+
+    from sc_fem.fem import fill
+
+    runs = [(r, p) for r in records for p in r.get("lobpcg_parts") or [] if p]
+    n = np.array([r["dofs"] for r, _ in runs], float)
+    setup = np.array([p["setup"] + p["rayleigh_ritz"] for _, p in runs])
+    (a, b), _ = nnls(np.column_stack([np.ones_like(n), n]), setup)
+    e = n * np.array([r.get("block", 20) for r, _ in runs], float)
+    per_it = np.array([p["solve"] / p["iterations"] for _, p in runs])
+    g, lc = np.polyfit(np.log(e / 1e6), np.log(per_it / e), 1)
+    model = fill.LOBPCG_FILL_MODEL
+    model.update(setup=float(a), setup_per_dof=float(b), c=float(np.exp(lc)), gamma=float(g))
+    print(f"1. set-up {a:.3g} s + {b:.3g} s/DOF; residual {np.ptp(np.log(setup / (a + b * n))):.2f} (log range)")
+    print(f"2. one iteration: {np.exp(lc):.3g} s x e x (e / 1e6)^{g:.3f}; per-run ratios "
+          f"{np.round(per_it / (np.exp(lc) * e * (e / 1e6) ** g), 2).tolist()}")
+    done = list({(r["shape"], r["res"]): r for r in records if r["lobpcg_iterations"] and r["nnz_l"]}.values())
+    taken = np.array([r["lobpcg_iterations"] for r in done], float)
+
+    def err(x):
+        model.update(q0=x[0], beta=x[1])
+        pred = np.array([fill.lobpcg_iterations(_analysis(r)) for r in done])
+        return float(np.sum(np.log(taken / pred) ** 2))
+
+    x = minimize(err, [model["q0"], model["beta"]], method="Nelder-Mead",
+                 options={"xatol": 1e-3, "fatol": 1e-6}).x
+    err(x)
+    print(f"3. iterations: q0 {x[0]:.3g}, beta {x[1]:.3g}; "
+          f"rms log(iterations taken / predicted) {np.sqrt(err(x) / len(done)):.3f} over {len(done)} shapes")
+    return dict(model)
 
 
 def _cell(rec: dict, m: str) -> str:
@@ -133,17 +216,36 @@ def _cell(rec: dict, m: str) -> str:
 
 
 def table(records: list[dict]) -> None:
-    """The Markdown table: per shape both solvers taken (median, spread) / predicted, and the choice."""
-    rows = []
+    """The Markdown table: per shape both solvers taken (median, spread) / predicted, LOBPCG's
+    iterations taken (predicted), and the choice; then the counts within 1.5x and the repeats' spread."""
+    rows, within, right, spread = [], {"shift-invert": [], "lobpcg": []}, 0, []
     for rec in records:
         t_si, t_l = rec["shift-invert"], rec["lobpcg"]
         best = "shift-invert" if t_l is None or (t_si is not None and t_si <= t_l) else "lobpcg"
         old = rec["shift-invert"] / rec["shift-invert_power_law"] if t_si is not None else float("nan")
-        rows.append([rec["shape"], rec["kind"], rec["res"], f"{rec['dofs']:,}", _cell(rec, "shift-invert"),
-                     f"{old:.2f}x", _cell(rec, "lobpcg"), rec["lobpcg_iterations"] or "-", rec["auto"], best, "yes" if rec["auto"] == best else "**no**",
-                     "yes" if rec["auto_power_law"] == best else "no", f"{rec['load']:.1f}-{rec['load_after']:.1f}"])
-    print_table(["shape", "kind", "res", "DOFs", "shift-invert taken / predicted", "power law: taken/pred",
-                 "LOBPCG taken / predicted", "LOBPCG its", "auto picks", "faster", "right?", "power law right?", "load"], rows)
+        right += rec["auto"] == best
+        for m in within:
+            ok = [t for t in rec[m + "_runs"] if t is not None]
+            if ok:
+                within[m].append(rec[m] / rec[m + "_predicted"])
+                spread.append(np.ptp(ok) / rec[m])
+        its = rec["lobpcg_iterations"] or "-"
+        if rec.get("lobpcg_iterations_predicted"):
+            its = f"{its} ({rec['lobpcg_iterations_predicted']:.0f})"
+        rows.append([rec["shape"], rec["kind"], rec["res"], f"{rec['dofs']:,}", rec.get("k", K_PAIRS),
+                     _cell(rec, "shift-invert"), f"{old:.2f}x", _cell(rec, "lobpcg"), its, rec["auto"], best,
+                     "yes" if rec["auto"] == best else "**no**", "yes" if rec["auto_power_law"] == best else "no",
+                     f"{rec['load']:.1f}-{rec['load_after']:.1f}"])
+    print_table(["shape", "kind", "res", "DOFs", "pairs", "shift-invert taken / predicted", "power law: taken/pred",
+                 "LOBPCG taken / predicted", "LOBPCG its (pred)", "auto picks", "faster", "right?",
+                 "power law right?", "load"], rows)
+    for m, r in within.items():
+        r = np.array(r)
+        if len(r):
+            print(f"{m}: within 1.5x on {int(np.sum((r <= 1.5) & (r >= 1 / 1.5)))} of {len(r)} "
+                  f"(taken / predicted {r.min():.2f}-{r.max():.2f})")
+    print(f"auto picks the faster on {right} of {len(records)}; spread (max - min) / median of the repeats: "
+          f"median {np.median(spread) if spread else 0:.0%}, largest {max(spread, default=0):.0%}")
 
 
 def chart(records: list[dict]) -> None:
@@ -155,11 +257,17 @@ def chart(records: list[dict]) -> None:
         pts = np.array([(r[key], r[m]) for r in records if r[m] is not None])
         if len(pts):
             ax.loglog(pts[:, 0], pts[:, 1], marker, mfc=fc, color="C1" if m == "lobpcg" else "C0", label=lab)
+        if fc is None:                                        # name the points outside 1.5x
+            for r in records:
+                if r[m] is not None and not 1 / 1.5 <= r[m] / r[key] <= 1.5:
+                    ax.annotate(f"{r['shape']} r{r['res']}", (r[key], r[m]), fontsize=7,
+                                color="C1" if m == "lobpcg" else "C0", xytext=(4, -3), textcoords="offset points")
     lim = [0.1, 300]
     ax.loglog(lim, lim, "k-", lw=0.8, label="taken = predicted")
     ax.fill_between(lim, [v / 1.5 for v in lim], [v * 1.5 for v in lim], color="0.88", label="within 1.5x")
-    ax.set(xlabel="predicted [s]", ylabel="taken [s] (median)", title=f"eigensolver time, {K_PAIRS} pairs, free-free")
-    ax.legend(fontsize=8)
+    ax.set(xlabel="predicted [s]", ylabel="taken [s] (median)",
+           title=f"eigensolver time, {K_PAIRS} pairs free-free (cantilever: 6, held)")
+    ax.legend(fontsize=8, loc="lower right")
     ax.grid(True, which="both", alpha=0.3)
     path = save_figure(fig, "auto_choice.png")
     if DOCS.is_dir():
@@ -175,10 +283,15 @@ def main(argv=None) -> int:
     ap.add_argument("--only", nargs="*", help="shape labels to run (default all)")
     ap.add_argument("--from-json", nargs="+", help="print the table and chart of earlier runs' JSON files "
                     "with the current model's predictions (from their stored fill), measure nothing")
+    ap.add_argument("--fit", action="store_true", help="with --from-json: fit LOBPCG's model to those runs "
+                    "(print the constants) and show the table with them")
     args = ap.parse_args(argv)
     print(f"uptime: {os.popen('uptime').read().strip()}")
     if args.from_json:
-        records = [repredict(rec) for f in args.from_json for rec in json.loads(Path(f).read_text())]
+        records = [rec for f in args.from_json for rec in json.loads(Path(f).read_text())]
+        if args.fit:
+            print("LOBPCG_FILL_MODEL =", {k: float(f"{v:.3g}") for k, v in fit(records).items()})
+        records = [repredict(rec) for rec in records]
     else:
         records = [measure(label, kind, mesh, r, scale, args.repeat)
                    for label, kind, mesh, resolutions, scale in shapes(args.quick, args.larger)

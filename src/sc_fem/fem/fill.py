@@ -10,8 +10,8 @@ column of ``L`` from the elimination tree (:func:`column_counts`, compiled with 
 factorization that follows (:func:`sc_fem.fem.linsolve.factorize` with ``analysis=``) does not
 order the matrix a second time. From the fill follow shift-invert's predicted time
 (:func:`shift_invert_seconds`, :data:`FILL_SPEED_MODEL`) and memory
-(:func:`sc_fem.fem.options.factor_memory_estimate`), and how much longer than on a compact solid
-LOBPCG is predicted to take on a thin one (:func:`lobpcg_factor`).
+(:func:`sc_fem.fem.options.factor_memory_estimate`), and LOBPCG's: a set-up plus iterations, more on
+a thin shape than on a compact solid (:func:`lobpcg_factor`), times their cost (:func:`lobpcg_seconds`).
 """
 
 from __future__ import annotations
@@ -280,22 +280,6 @@ relative) to the 10 shapes of ``python benchmarks/auto_choice.py --quick`` (2026
 taken / predicted 0.85-1.2 on 8 of 10, 1.47 on the bridge and 1.83 on the armchair. See
 ``docs/performance.md`` for the shapes it was not fitted to."""
 
-LOBPCG_FILL_MODEL = {"c": 0.333, "q0": 13.0, "beta": 1.0, "cap": 8.0}
-"""LOBPCG + AMG's seconds when the fill is known (:func:`lobpcg_factor`): ``(c * (n / 7776) ** 0.98
-* factor + overhead) * block(k) / block(6)`` (:func:`sc_fem.fem.options.lobpcg_block`), the power law of :data:`sc_fem.fem.options.SPEED_MODEL` for a
-compact solid times ``factor = min((q0 / q) ** beta, cap)`` where ``q = nnz(L) / n^(4/3)`` is below
-``q0``. LOBPCG's iterations grow on thin, slender members, which the lattice multigrid
-preconditions worse, and such models fill little. ``q0, beta`` fitted to the iterations (16 pairs,
-load-independent): compact solids q = 11-19, 23 iterations (the bunny at r40 34); chair and
-armchair q = 6.4-9.1, 45; plate 6.0, 45; I-beam 5.8, 69; table 5.4, 34; truss bridge 3.6-3.8,
-85-139; the toy truck (many parts) 10.9, 45. ``c`` fitted to the times of the ``--quick`` run
-(numba's products: without numba there is no fill analysis): 0.43 on 2026-11-25, 0.25 on 2026-11-28
-(the geometric mean of taken / predicted was 0.58, spread 0.31-0.86, on a quieter machine), then
-0.333 when the cost was scaled by LOBPCG's block (20 vectors for the fit's 16 pairs, 10 for 6)
-instead of by ``k / 6``: the same predictions for 16 pairs, and for 6 pairs of the 139,656-DOF
-cantilever 5.85 s instead of 4.39 s (taken: 7.3 s)."""
-
-
 def shift_invert_seconds(analysis: FillAnalysis, k: int) -> float:
     """Seconds shift-invert takes for ``k`` pairs (set-up included), from the fill (:data:`FILL_SPEED_MODEL`).
 
@@ -316,6 +300,47 @@ def shift_invert_seconds(analysis: FillAnalysis, k: int) -> float:
             + (m["seconds_per_entry"] * analysis.nnz_l + m["seconds_per_dof"] * n) * ncv)
 
 
+def lobpcg_block(k: int) -> int:
+    """Vectors in LOBPCG's block for ``k`` wanted pairs (a few extra speed convergence; its cost grows with it).
+
+    Parameters
+    ----------
+    k : int
+        Wanted eigenpairs.
+
+    Returns
+    -------
+    int
+        ``k + max(4, k // 4)``.
+    """
+    return k + max(4, k // 4)
+
+
+LOBPCG_FILL_MODEL = {"setup": 0.090, "setup_per_dof": 4.64e-6, "c": 1.66e-7, "gamma": 0.178, "iterations": 23.0,
+                     "q0": 13.4, "beta": 1.21, "cap": 8.0}
+"""LOBPCG + AMG's seconds when the fill is known (:func:`lobpcg_seconds`): a set-up, then
+iterations times the cost of one.
+
+* Set-up (the AMG hierarchy and the final Rayleigh--Ritz): ``setup + setup_per_dof * n`` s.
+* One iteration on a block of ``b`` vectors (:func:`lobpcg_block`): ``c * e * (e / 1e6) ** gamma``
+  s for ``e = n * b`` block entries (the V-cycle, the products and LOBPCG's dense algebra all
+  touch each entry a fixed number of times; per entry they slow down as the block outgrows the
+  caches, ``gamma``).
+* Iterations (:func:`lobpcg_iterations`): a compact solid's ``iterations`` (the first round of
+  ``LOBPCG_ROUNDS``) times :func:`lobpcg_factor`, ``min((q0 / q) ** beta, cap)`` for a fill
+  ``q = nnz(L) / n^(4/3)`` below ``q0``: thin, slender members fill little, and the lattice
+  multigrid preconditions them worse.
+
+Fitted (``python benchmarks/auto_choice.py --from-json out/auto_choice_fitdata.json
+out/auto_choice_fitdata2.json --fit``: two ``--quick --repeat 2`` runs, 2026-11-28, load 1-3, numba's
+products) to 10 shapes' 40 runs (the bridge's stalls), each step on what it predicts: the set-up to the runs' set-up
+seconds, ``c, gamma`` to their seconds per iteration (0.57-1.59x of the law), ``q0, beta`` to the
+iterations (rms 0.30 in log: the beam r48 22 taken / 39 predicted, the toy truck 45 / 29, the truss
+139 / 93; the fill cannot tell a prism of 5 x 5 cubes from a chair). ``iterations`` is the compact
+solids' (bunny, spot, the held cantilever: 23).
+"""
+
+
 def lobpcg_factor(analysis: FillAnalysis) -> float:
     """How many times a compact solid's iterations LOBPCG is predicted to take (:data:`LOBPCG_FILL_MODEL`).
 
@@ -332,6 +357,58 @@ def lobpcg_factor(analysis: FillAnalysis) -> float:
     m = LOBPCG_FILL_MODEL
     q = analysis.nnz_l / max(analysis.n, 1) ** (4.0 / 3.0)
     return float(min(max(m["q0"] / max(q, 1e-12), 1.0) ** m["beta"], m["cap"]))
+
+
+def lobpcg_iterations(analysis: FillAnalysis) -> float:
+    """LOBPCG's predicted iterations: ``LOBPCG_FILL_MODEL["iterations"] * lobpcg_factor(analysis)``.
+
+    Parameters
+    ----------
+    analysis : FillAnalysis
+        The fill of the shifted matrix.
+
+    Returns
+    -------
+    float
+        Iterations (not rounded: the model's mean over the shapes it was fitted to).
+    """
+    return LOBPCG_FILL_MODEL["iterations"] * lobpcg_factor(analysis)
+
+
+def lobpcg_iteration_seconds(n: int, k: int) -> float:
+    """Seconds of one LOBPCG + AMG iteration for ``k`` pairs of ``n`` DOFs (:data:`LOBPCG_FILL_MODEL`).
+
+    Parameters
+    ----------
+    n, k : int
+        Free DOFs and wanted eigenpairs.
+
+    Returns
+    -------
+    float
+        ``c * e * (e / 1e6) ** gamma`` for ``e = n * lobpcg_block(k)`` block entries.
+    """
+    m, e = LOBPCG_FILL_MODEL, float(max(n, 1)) * min(lobpcg_block(k), max(n - 1, 1))
+    return m["c"] * e * (e / 1e6) ** m["gamma"]
+
+
+def lobpcg_seconds(analysis: FillAnalysis, k: int) -> float:
+    """Seconds LOBPCG + AMG takes for ``k`` pairs, set-up included, from the fill (:data:`LOBPCG_FILL_MODEL`).
+
+    Parameters
+    ----------
+    analysis : FillAnalysis
+        The fill of the shifted matrix (its ``n`` and ``nnz_l``).
+    k : int
+        Eigenpairs.
+
+    Returns
+    -------
+    float
+        ``setup + setup_per_dof * n + lobpcg_iterations(analysis) * lobpcg_iteration_seconds(n, k)``.
+    """
+    m, n = LOBPCG_FILL_MODEL, analysis.n
+    return m["setup"] + m["setup_per_dof"] * n + lobpcg_iterations(analysis) * lobpcg_iteration_seconds(n, k)
 
 
 FILL_ANALYSIS_MAX_DOFS = 400_000

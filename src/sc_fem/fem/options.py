@@ -7,9 +7,10 @@ of :func:`sc_fem.solve_static`'s linear solve (:class:`StaticOptions`, :func:`ch
 fits the budget (:func:`memory_budget`: ``max_memory``, default half the available memory).
 Shift-invert's time and memory follow from the fill of the matrix itself
 (:func:`~sc_fem.fem.fill.fill_analysis`:
-CHOLMOD's ordering, whose factorization then reuses it), LOBPCG's from a power law in ``n`` that
-the fill corrects for thin members; without CHOLMOD or numba both from :data:`SPEED_MODEL`. The
-solvers themselves are in :mod:`sc_fem.fem.eigen`.
+CHOLMOD's ordering, whose factorization then reuses it), LOBPCG's as a set-up plus iterations
+(more on thin members, which fill less) times their cost (:func:`~sc_fem.fem.fill.lobpcg_seconds`);
+without CHOLMOD or numba both from :data:`SPEED_MODEL`. The solvers themselves are in
+:mod:`sc_fem.fem.eigen`.
 """
 
 from __future__ import annotations
@@ -23,8 +24,8 @@ from .._validate import positive_int, positive_scalar
 from ..errors import InputError, SolverError
 
 # fill_analysis and its size limit are re-exported: the automatic choice's names stay importable from here
-from .fill import (FILL_ANALYSIS_MAX_DOFS, LOBPCG_FILL_MODEL, fill_analysis, lobpcg_factor,  # noqa: F401
-                   shift_invert_seconds)
+from .fill import (FILL_ANALYSIS_MAX_DOFS, LOBPCG_FILL_MODEL, fill_analysis, lobpcg_block,  # noqa: F401
+                   lobpcg_factor, lobpcg_seconds, shift_invert_seconds)
 from .linsolve import BACKENDS, SystemSolver
 
 if TYPE_CHECKING:
@@ -127,12 +128,13 @@ DOFs; LOBPCG + smoothed-aggregation AMG with scipy's products 2.54 s / 4.57 s / 
 24,336 / 55,488 / 158,976 / 931,896 DOFs (2026-11-23), and with the compiled row-parallel products
 (``"lobpcg-numba"``, used when numba is installed) 2.42 s / 9.4-10.2 s at 37,800 / 158,976 DOFs
 (2026-11-24). The factorization's cost grows with ~n^2, LOBPCG's with ~n; they cross near 24,000
-DOFs (~18,000 with numba). LOBPCG's cost also grows with its block (:func:`lobpcg_block`)."""
+DOFs (~18,000 with numba). LOBPCG's cost also grows with its block (:func:`~sc_fem.fem.fill.lobpcg_block`)."""
 
 
 LOBPCG_OVERHEAD = 0.15
 """Seconds LOBPCG + AMG takes for 6 pairs beyond :data:`SPEED_MODEL`'s power law (the hierarchy's
-set-up and each iteration's Python work): 0.17 s for 8 pairs of a 432-DOF box, 0.33 s for 16."""
+set-up and each iteration's Python work), without a fill analysis: 0.17 s for 8 pairs of a 432-DOF
+box, 0.33 s for 16."""
 
 def predicted_seconds(method: str, n: int, k: int, analysis: FillAnalysis | None = None) -> float:
     """Seconds predicted for ``k`` modes of ``n`` free DOFs.
@@ -144,8 +146,9 @@ def predicted_seconds(method: str, n: int, k: int, analysis: FillAnalysis | None
     n, k : int
         Free DOFs and eigenpairs.
     analysis : FillAnalysis, optional
-        The fill of the shifted matrix (:func:`~sc_fem.fem.fill.analyze_fill`): shift-invert is then
-        predicted from it (:data:`~sc_fem.fem.fill.FILL_SPEED_MODEL`), else from :data:`SPEED_MODEL`'s power law in ``n``.
+        The fill of the shifted matrix (:func:`~sc_fem.fem.fill.analyze_fill`): both are then
+        predicted from it (:data:`~sc_fem.fem.fill.FILL_SPEED_MODEL`,
+        :data:`~sc_fem.fem.fill.LOBPCG_FILL_MODEL`), else from :data:`SPEED_MODEL`'s power law in ``n``.
 
     Returns
     -------
@@ -159,24 +162,7 @@ def predicted_seconds(method: str, n: int, k: int, analysis: FillAnalysis | None
         return c * (max(n, 1) / 7776.0) ** p
     if analysis is None:                      # the power law: fitted to 6 pairs, scaled by k
         return (c * (max(n, 1) / 7776.0) ** p + LOBPCG_OVERHEAD) * max(k, 6) / 6.0
-    c, thin = LOBPCG_FILL_MODEL["c"], lobpcg_factor(analysis)      # the fill's model: by LOBPCG's block
-    return (c * (max(n, 1) / 7776.0) ** p * thin + LOBPCG_OVERHEAD) * lobpcg_block(k) / lobpcg_block(6)
-
-
-def lobpcg_block(k: int) -> int:
-    """Vectors in LOBPCG's block for ``k`` wanted pairs (a few extra speed convergence; its cost grows with it).
-
-    Parameters
-    ----------
-    k : int
-        Wanted eigenpairs.
-
-    Returns
-    -------
-    int
-        ``k + max(4, k // 4)``.
-    """
-    return k + max(4, k // 4)
+    return lobpcg_seconds(analysis, k)        # set-up + iterations (from the fill) x their cost
 
 
 def memory_budget(max_memory: float | None = None) -> float:
