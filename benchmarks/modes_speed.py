@@ -16,7 +16,8 @@ one end held), 6 modes. Each size is timed, in a fresh process per row:
   (``--peer-maxiter`` iterations at most).
 
 Prints a Markdown table (seconds, the ratio to the peer, iterations, the first frequency) and
-writes ``benchmarks/out/modes_speed.png``. The machine is shared: compare the ratios of one run.
+writes ``benchmarks/out/modes_speed.png``. The machine is shared: the rows' runs are interleaved
+(peer, ours, baseline, then again), and the ratios of one run are what to compare.
 """
 
 from __future__ import annotations
@@ -100,12 +101,13 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     rows, plot = [], []
     for a in args.sizes:
-        def best(what, src=None):
-            got = [run(a, what, src, args.peer_maxiter) for _ in range(args.repeat)]
-            return min(got, key=lambda g: g["seconds"])
-        peer = best("peer")
-        ours = best("modal")
-        base = best("modal", args.baseline_src) if args.baseline_src else None
+        kinds = [("peer", None), ("modal", None)] + ([("modal", args.baseline_src)] if args.baseline_src else [])
+        got = {kind: [] for kind in kinds}
+        for _ in range(args.repeat):              # interleaved: a shared machine's load hits all alike
+            for kind in kinds:
+                got[kind].append(run(a, kind[0], kind[1], args.peer_maxiter))
+        peer, ours = (min(got[kind], key=lambda g: g["seconds"]) for kind in kinds[:2])
+        base = min(got[kinds[2]], key=lambda g: g["seconds"]) if args.baseline_src else None
         rows.append([a, ours["cubes"], peer["dofs"], f"{ours['seconds']:.2f}", ours["iterations"],
                      f"{base['seconds']:.2f}" if base else "-", base["iterations"] if base else "-",
                      f"{peer['seconds']:.2f}", peer["iterations"], f"{ours['seconds'] / peer['seconds']:.2f}",

@@ -169,3 +169,122 @@ def test_blas_single_threaded_limits_the_blas():
     with _jit.blas_single_threaded():
         blas = [p for p in threadpoolctl.threadpool_info() if p["user_api"] == "blas"]
         assert blas and all(p["num_threads"] == 1 for p in blas)     # numpy's BLAS is loaded and limited
+
+
+def _random_bsr(rows: int, cols: int, blocksize: tuple[int, int], dtype, seed: int) -> sp.bsr_matrix:
+    """A random BSR matrix of ``rows x cols`` blocks, some block rows empty."""
+    r, c = blocksize
+    dense = sp.random(rows, cols, density=0.3, random_state=seed, format="csr")
+    dense = sp.kron(dense, np.ones(blocksize)).toarray() * np.random.default_rng(seed).standard_normal((rows * r, cols * c))
+    dense[:r] = 0.0                                                  # an empty block row
+    return sp.bsr_matrix(dense.astype(dtype), blocksize=blocksize)
+
+
+@needs_numba
+@pytest.mark.parametrize("blocksize", [(3, 6), (6, 3), (6, 6), (3, 3)])
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("parallel", [False, True])
+def test_any_block_product_and_its_transpose_match_a_loop_oracle(blocksize, dtype, parallel, monkeypatch):
+    """The compiled products with a prolongator's (3 x 6), a restriction's (6 x 3) and a coarse
+    level's (6 x 6) blocks, and with the transpose of a matrix from its own blocks (the restriction
+    ``P.T``, no second matrix), serial and parallel, float64 and float32: a loop over the BSR
+    arrays (float64) to the precision of the type, and the result in the matrix's type."""
+    from sc_fem.fem import bsr
+
+    monkeypatch.setattr(bsr, "PARALLEL_NNZ", 0 if parallel else 10**12)
+    A = _random_bsr(9, 7, blocksize, dtype, seed=sum(blocksize))
+    A64 = sp.bsr_matrix((A.data.astype(np.float64), A.indices, A.indptr), shape=A.shape)
+    At64 = sp.bsr_matrix(A64.T)
+    rng = np.random.default_rng(4)
+    tol = 1e-13 if dtype == np.float64 else 1e-5
+    for transpose, oracle_of in ((False, A64), (True, At64)):
+        prod = bsr.NodeBlockProduct(A, "numba", transpose=transpose)
+        assert prod.fast and prod.parallel == parallel and prod.shape == oracle_of.shape
+        X = rng.standard_normal((oracle_of.shape[1], 5)).astype(dtype)
+        ref = bsr_loop_oracle(oracle_of, X.astype(np.float64))
+        for x, want in ((X, ref), (X[:, 2], ref[:, 2])):        # a block of vectors and one vector
+            got = prod(x)
+            assert got.dtype == dtype and got.shape == want.shape
+            np.testing.assert_allclose(got, want, rtol=0, atol=tol * np.abs(ref).max())
+        slow = bsr.NodeBlockProduct(A, "numpy", transpose=transpose)      # scipy's, R stored once
+        np.testing.assert_allclose(slow(X), ref, rtol=0, atol=tol * np.abs(ref).max())
+
+
+@needs_numba
+@pytest.mark.parametrize("parallel", [False, True])
+def test_float32_node_block_products_and_scaled_residual(parallel, monkeypatch):
+    """The 3 x 3 node-block kernels in float32 (a float32 V-cycle's): the product and ``D^-1 (b - A x)``
+    against the float64 loop oracle to single precision, in float32."""
+    from sc_fem.fem import bsr
+
+    monkeypatch.setattr(bsr, "PARALLEL_NNZ", 0 if parallel else 10**12)
+    m = CubeModel.box((7, 3, 2), 0.1, youngs=1e7, poisson=0.3, density=1000.0)
+    Kb = bsr.node_blocks(Assembler(m, "q1i", fixed_dofs=np.arange(3 * 4)).stiffness())
+    K32 = sp.bsr_matrix((Kb.data.astype(np.float32), Kb.indices, Kb.indptr), shape=Kb.shape)
+    rng = np.random.default_rng(5)
+    X, Bv = rng.standard_normal((Kb.shape[0], 4)), rng.standard_normal((Kb.shape[0], 4))
+    dinv = np.linalg.inv(Kb.data[Kb.indices == np.repeat(np.arange(Kb.shape[0] // 3), np.diff(Kb.indptr))])
+    ref = bsr_loop_oracle(Kb, X)
+    prod = bsr.NodeBlockProduct(K32, "numba")
+    got = prod(X.astype(np.float32))
+    assert got.dtype == np.float32
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-5 * np.abs(ref).max())
+    want = bsr.block_diagonal_product(dinv, Bv - ref)
+    for b, w in ((Bv, want), (None, bsr.block_diagonal_product(dinv, -ref))):
+        got = prod.scaled_residual(dinv.astype(np.float32), X.astype(np.float32),
+                                   None if b is None else b.astype(np.float32))
+        assert got.dtype == np.float32
+        np.testing.assert_allclose(got, w, rtol=0, atol=1e-5 * np.abs(w).max())
+        acc = np.ones_like(got)                                          # added in place
+        out = prod.scaled_residual(dinv.astype(np.float32), X.astype(np.float32),
+                                   None if b is None else b.astype(np.float32), add_to=acc)
+        assert out is acc
+        np.testing.assert_allclose(acc, 1.0 + w, rtol=0, atol=1e-5 * np.abs(w).max())
+
+
+@pytest.mark.parametrize("kernel", [pytest.param("numba", marks=needs_numba), "numpy"])
+def test_float32_v_cycle_is_the_float64_one_to_single_precision(kernel):
+    """``LatticeAMG(dtype=float32)``: the V-cycle's matrices in float32 (``R`` not kept when compiled),
+    the finest level's products (LOBPCG's and CG's) still float64 and exact, the V-cycle taking and
+    giving float64 and equal to the float64 one to single precision."""
+    m = CubeModel.box((24, 4, 4), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
+    asm = Assembler(m, "q1i", fixed_dofs=np.arange(3 * 25))
+    K = asm.stiffness()
+    B = rigid_body_modes(m.nodes_m, asm.free_dofs)
+    X = np.random.default_rng(1).standard_normal((K.shape[0], 6))
+    a64 = LatticeAMG(K, B, max_coarse=50, kernel=kernel)
+    a32 = LatticeAMG(K, B, max_coarse=50, kernel=kernel, dtype=np.float32)
+    assert len(a32.levels) == len(a64.levels) > 1
+    for lvl in a32.levels:
+        assert lvl.smoothing.A.dtype == np.float32 and lvl.Dinv.dtype == np.float32
+        assert lvl.P is None or (lvl.P.dtype == np.float32 and lvl.R is None)
+    fine = a32.levels[0]
+    assert fine.A.dtype == np.float64
+    np.testing.assert_allclose(fine(X), K @ X, rtol=0, atol=1e-12 * np.abs(K @ X).max())
+    for x in (X, X[:, 0]):
+        got, ref = a32.vcycle(x), a64.vcycle(x)
+        assert got.dtype == np.float64 and got.shape == x.shape
+        np.testing.assert_allclose(got, ref, rtol=0, atol=1e-4 * np.abs(ref).max())
+    with pytest.raises(InputError, match="float64 or float32"):
+        LatticeAMG(K, B, max_coarse=50, dtype=np.float16)
+
+
+@needs_numba
+def test_float32_preconditioner_finds_the_same_eigenpairs_in_as_many_iterations(monkeypatch):
+    """LOBPCG (float64) with the float32 V-cycle: shift-invert's eigenvalues and the float64
+    V-cycle's iterations."""
+    from sc_fem.fem import eigen
+
+    m = CubeModel.box((24, 4, 4), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
+    asm = Assembler(m, "q1i", fixed_dofs=np.arange(3 * 25))
+    K, M = asm.stiffness(), asm.mass()
+    B = rigid_body_modes(m.nodes_m, asm.free_dofs)
+    got = {}
+    for dt in (np.float32, np.float64):
+        monkeypatch.setattr(eigen, "VCYCLE_DTYPE", dt)
+        got[dt] = solve_eigen(K, M, 6, method="lobpcg", near_null=B)
+    ref = solve_eigen(K, M, 6, method="shift-invert", backend="splu")
+    np.testing.assert_allclose(got[np.float32].eigenvalues, ref.eigenvalues, rtol=1e-8)
+    np.testing.assert_allclose(got[np.float32].eigenvalues, got[np.float64].eigenvalues, rtol=1e-10)
+    assert abs(got[np.float32].info["iterations"] - got[np.float64].info["iterations"]) <= 1
+    assert got[np.float32].residuals.max() <= eigen.LOBPCG_ACCEPT

@@ -4,8 +4,11 @@ A lattice's stiffness and mass (node-major interleaved DOFs, nodes fixed whole) 
 columns in the 3 rows of a node: as block sparse rows (BSR) they keep one column index per 3 x 3
 block instead of one per entry. :func:`node_blocks` converts; :class:`NodeBlockProduct` multiplies,
 compiled and split over the cores when numba is installed (the ``fast`` extra), else by scipy's
-BSR product (same numbers up to the order of a row's sums). The multigrid of
-:mod:`sc_fem.fem.multigrid` spends most of its time here.
+BSR product (same numbers up to the order of a row's sums). The kernels take any block size (the
+multigrid's prolongators have 3 x 6 blocks, its coarse levels 6 x 6), the transpose of a matrix
+from its own blocks (the restriction ``P.T``, no second matrix), and float32 as well as float64
+(a float32 V-cycle reads half the bytes). The multigrid of :mod:`sc_fem.fem.multigrid` spends most
+of its time here.
 """
 
 from __future__ import annotations
@@ -20,6 +23,11 @@ PARALLEL_NNZ = 4_000_000
 for both threads: on this shared 2-core machine, with another process on the other core, that cost
 ~8 ms a call whatever the size (0.3 ms for the 578k nonzeros of an 8,820-DOF cantilever on one
 core); at 14.6M nonzeros it took 7 ms on 2 quiet cores, 12 ms on one."""
+
+PARALLEL_WORK = 16_000_000
+"""A product with a block of vectors runs on every core also below :data:`PARALLEL_NNZ` when its
+nonzeros times its columns reach this: a float32 V-cycle's prolongation and restriction at
+139,656 DOFs (2.6M nonzeros, 10 columns) took 9.5 ms each on one core, 5 ms on two."""
 
 CHUNKS = 64
 """Row chunks of a parallel product (more than cores, so that a slow core does not hold the rest)."""
@@ -64,11 +72,11 @@ def _bsr3_block_py(indptr, indices, data, X, Y):  # pragma: no cover - compiled
         _bsr3_block_rows(indptr, indices, data, X, Y, c * n // CHUNKS, (c + 1) * n // CHUNKS)
 
 
-def _bsr3_dres_rows_py(indptr, indices, data, dinv, X, B, Y, lo, hi):  # pragma: no cover - compiled
+def _bsr3_dres_rows_py(indptr, indices, data, dinv, X, B, Y, add, lo, hi):  # pragma: no cover - compiled
     k = X.shape[1]
     have_b = B.shape[0] > 0
-    t = np.empty((3, k))
-    for i in range(lo, hi):                     # Y = D^-1 (B - A X) on the node rows lo:hi
+    t = np.empty((3, k), dtype=Y.dtype)         # in the vectors' precision (float32 in a float32 V-cycle)
+    for i in range(lo, hi):                     # Y = D^-1 (B - A X) on the node rows lo:hi (add: Y +=)
         r = 3 * i
         for a in range(3):
             for c in range(k):
@@ -81,13 +89,57 @@ def _bsr3_dres_rows_py(indptr, indices, data, dinv, X, B, Y, lo, hi):  # pragma:
                     t[a, c] -= d0 * X[j, c] + d1 * X[j + 1, c] + d2 * X[j + 2, c]
         for a in range(3):
             for c in range(k):
-                Y[r + a, c] = dinv[i, a, 0] * t[0, c] + dinv[i, a, 1] * t[1, c] + dinv[i, a, 2] * t[2, c]
+                v = dinv[i, a, 0] * t[0, c] + dinv[i, a, 1] * t[1, c] + dinv[i, a, 2] * t[2, c]
+                Y[r + a, c] = Y[r + a, c] + v if add else v
 
 
-def _bsr3_dres_py(indptr, indices, data, dinv, X, B, Y):  # pragma: no cover - compiled
+def _bsr3_dres_py(indptr, indices, data, dinv, X, B, Y, add):  # pragma: no cover - compiled
     n = len(indptr) - 1
     for c in prange(CHUNKS):
-        _bsr3_dres_rows(indptr, indices, data, dinv, X, B, Y, c * n // CHUNKS, (c + 1) * n // CHUNKS)
+        _bsr3_dres_rows(indptr, indices, data, dinv, X, B, Y, add, c * n // CHUNKS, (c + 1) * n // CHUNKS)
+
+
+def _bsr_rows_py(indptr, indices, data, X, Y, lo, hi):  # pragma: no cover - compiled
+    R, C = data.shape[1], data.shape[2]
+    k = X.shape[1]
+    for i in range(lo, hi):                     # Y = A X on the block rows lo:hi, any R x C blocks
+        r = R * i
+        for a in range(R):
+            for c in range(k):
+                Y[r + a, c] = 0.0
+        for p in range(indptr[i], indptr[i + 1]):
+            j = C * indices[p]
+            for a in range(R):
+                for b in range(C):
+                    d = data[p, a, b]
+                    for c in range(k):
+                        Y[r + a, c] += d * X[j + b, c]
+
+
+def _bsr_block_py(indptr, indices, data, X, Y):  # pragma: no cover - compiled
+    n = len(indptr) - 1
+    for c in prange(CHUNKS):
+        _bsr_rows(indptr, indices, data, X, Y, c * n // CHUNKS, (c + 1) * n // CHUNKS)
+
+
+def _bsr_t_rows_py(indptr, indices, data, X, Y, lo, hi):  # pragma: no cover - compiled
+    R, C = data.shape[1], data.shape[2]
+    k = X.shape[1]
+    for i in range(lo, hi):                     # Y += A^T X from the block rows lo:hi of A
+        r = R * i
+        for p in range(indptr[i], indptr[i + 1]):
+            j = C * indices[p]
+            for a in range(R):
+                for b in range(C):
+                    d = data[p, a, b]
+                    for c in range(k):
+                        Y[j + b, c] += d * X[r + a, c]
+
+
+def _bsr_t_block_py(indptr, indices, data, X, Ys):  # pragma: no cover - compiled
+    n, parts = len(indptr) - 1, Ys.shape[0]
+    for t in prange(parts):                     # each part of A's rows adds into its own Ys[t]
+        _bsr_t_rows(indptr, indices, data, X, Ys[t], t * n // parts, (t + 1) * n // parts)
 
 
 # separate functions, not one compiled twice: numba's disk cache keys a function by name and line, and a
@@ -98,6 +150,13 @@ _bsr3_block_rows = compiled(_bsr3_block_rows_py)
 _bsr3_block = compiled_parallel(_bsr3_block_py)
 _bsr3_dres_rows = compiled(_bsr3_dres_rows_py)
 _bsr3_dres = compiled_parallel(_bsr3_dres_py)
+_bsr_rows = compiled(_bsr_rows_py)
+_bsr_block = compiled_parallel(_bsr_block_py)
+_bsr_t_rows = compiled(_bsr_t_rows_py)
+_bsr_t_block = compiled_parallel(_bsr_t_block_py)
+
+T_PARTS = 4
+"""Row parts of a parallel transposed product, each adding into its own copy of the (short) result."""
 
 
 def _node_blocks_py(ptr, indices, data, bptr, bidx, bdata, bad):  # pragma: no cover - compiled
@@ -143,56 +202,96 @@ def node_blocks(A: sp.spmatrix) -> sp.bsr_matrix:
 
 
 class NodeBlockProduct:
-    """``x -> A @ x`` for a BSR matrix ``A`` and ``x`` of shape (n,) or (n, k).
+    """``x -> A @ x`` (or ``A.T @ x``) for a BSR matrix ``A`` and ``x`` of shape (m,) or (m, k), in
+    ``A``'s precision.
 
     Parameters
     ----------
-    A : scipy.sparse.bsr_matrix, shape (n, n)
-        The matrix (any block size; the compiled kernels take 3 x 3 blocks).
+    A : scipy.sparse.bsr_matrix, shape (n, m)
+        The matrix, float64 or float32 (a float32 V-cycle's), any block size: the 3 x 3 node blocks
+        of a lattice matrix, a prolongator's 3 x 6 or a coarse level's 6 x 6.
     kernel : {"numba", "numpy"}
-        ``"numba"``: compiled (on every core from :data:`PARALLEL_NNZ` nonzeros); ``"numpy"``:
-        scipy's product. A block size other than 3 always takes scipy's.
+        ``"numba"``: compiled (on every core from :data:`PARALLEL_NNZ` nonzeros, or
+        :data:`PARALLEL_WORK` nonzeros times columns); ``"numpy"``: scipy's product (one thread).
+    transpose : bool
+        The product with ``A.T`` (shape (m, n); a restriction from its prolongator, no second
+        matrix); compiled only: ``"numpy"`` takes scipy's product with ``A.T`` stored once.
     """
 
-    def __init__(self, A: sp.bsr_matrix, kernel: str) -> None:
-        self.A = A
-        self.fast = choose_kernel(kernel) == "numba" and A.blocksize == (3, 3)
+    def __init__(self, A: sp.bsr_matrix, kernel: str, transpose: bool = False) -> None:
+        self.fast = choose_kernel(kernel) == "numba"
+        self.transpose = bool(transpose) and self.fast
+        self.A = sp.bsr_matrix(A.T) if transpose and not self.fast else A
+        self.dtype = A.dtype
+        self.shape = A.shape[::-1] if transpose else A.shape
+        self.node = A.blocksize == (3, 3) and A.shape[0] == A.shape[1] and not self.transpose
         self.parallel = A.nnz >= PARALLEL_NNZ
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         A = self.A
         if not self.fast:
-            return A @ x
-        x = np.ascontiguousarray(x, dtype=np.float64)
-        y = np.empty((A.shape[0],) + x.shape[1:])
+            return A @ np.asarray(x, dtype=self.dtype)
+        x = np.ascontiguousarray(x, dtype=self.dtype)
         n = len(A.indptr) - 1
-        if x.ndim == 1:
+        parallel = self.parallel or (x.ndim == 2 and A.nnz * x.shape[1] >= PARALLEL_WORK)
+        if self.transpose:                     # Y = A^T X: each part of the rows adds into its own Y
+            X = x.reshape(x.shape[0], -1)
+            Ys = np.zeros((T_PARTS if parallel else 1, self.shape[0], X.shape[1]), dtype=self.dtype)
+            if parallel:
+                _bsr_t_block(A.indptr, A.indices, A.data, X, Ys)
+            else:
+                _bsr_t_rows(A.indptr, A.indices, A.data, X, Ys[0], 0, n)
+            return Ys.sum(axis=0).reshape((self.shape[0],) + x.shape[1:])
+        y = np.empty((A.shape[0],) + x.shape[1:], dtype=self.dtype)
+        if not self.node:                      # any blocks, a vector as a one-column block
+            X, Y = x.reshape(x.shape[0], -1), y.reshape(y.shape[0], -1)
+            if parallel:
+                _bsr_block(A.indptr, A.indices, A.data, X, Y)
+            else:
+                _bsr_rows(A.indptr, A.indices, A.data, X, Y, 0, n)
+        elif x.ndim == 1:
             if self.parallel:
                 _bsr3_mv(A.indptr, A.indices, A.data, x, y)
             else:
                 _bsr3_rows(A.indptr, A.indices, A.data, x, y, 0, n)
-        elif self.parallel:
+        elif parallel:
             _bsr3_block(A.indptr, A.indices, A.data, x, y)
         else:
             _bsr3_block_rows(A.indptr, A.indices, A.data, x, y, 0, n)
         return y
 
-    def scaled_residual(self, dinv: np.ndarray, x: np.ndarray, b: np.ndarray | None) -> np.ndarray:
-        """``D^-1 (b - A x)`` in one pass over ``A`` (``b`` None: ``-D^-1 A x``), ``x`` and ``b`` of
-        shape (n,) or (n, k), ``dinv`` the inverse diagonal blocks, shape (n // 3, 3, 3)."""
+    def scaled_residual(self, dinv: np.ndarray, x: np.ndarray, b: np.ndarray | None,
+                        add_to: np.ndarray | None = None) -> np.ndarray:
+        """``D^-1 (b - A x)`` in one pass over ``A`` (``b`` None: ``-D^-1 A x``).
+
+        Parameters
+        ----------
+        dinv : ndarray, shape (n // bs, bs, bs)
+            The inverse diagonal blocks.
+        x, b : ndarray, shape (n,) or (n, k)
+            In ``A``'s precision (compiled for 3 x 3 blocks).
+        add_to : ndarray, shape of ``x``, optional
+            C-ordered, ``A``'s precision: the result is added to it (no new array; a V-cycle's
+            Chebyshev residual update) and it is returned.
+
+        Returns
+        -------
+        ndarray, shape of ``x``
+        """
         A = self.A
-        if not self.fast:
-            r = -(A @ x) if b is None else b - A @ x
-            return block_diagonal_product(dinv, r)
-        shape = x.shape
-        X = np.ascontiguousarray(x, dtype=np.float64).reshape(shape[0], -1)
-        Bm = np.empty((0, X.shape[1])) if b is None else np.ascontiguousarray(b, dtype=np.float64).reshape(X.shape)
-        Y = np.empty_like(X)
-        if self.parallel:
-            _bsr3_dres(A.indptr, A.indices, A.data, dinv, X, Bm, Y)
+        if not (self.fast and self.node) or (add_to is not None and not add_to.flags.c_contiguous):
+            ax = self(x)
+            y = block_diagonal_product(dinv, np.negative(ax, out=ax) if b is None else b - ax)
+            return y if add_to is None else np.add(add_to, y, out=add_to)
+        shape, dt = x.shape, self.dtype
+        X = np.ascontiguousarray(x, dtype=dt).reshape(shape[0], -1)
+        Bm = np.empty((0, X.shape[1]), dt) if b is None else np.ascontiguousarray(b, dtype=dt).reshape(X.shape)
+        Y = np.empty_like(X) if add_to is None else add_to.reshape(X.shape)
+        if self.parallel or A.nnz * X.shape[1] >= PARALLEL_WORK:
+            _bsr3_dres(A.indptr, A.indices, A.data, dinv, X, Bm, Y, add_to is not None)
         else:
-            _bsr3_dres_rows(A.indptr, A.indices, A.data, dinv, X, Bm, Y, 0, len(A.indptr) - 1)
-        return Y.reshape(shape)
+            _bsr3_dres_rows(A.indptr, A.indices, A.data, dinv, X, Bm, Y, add_to is not None, 0, len(A.indptr) - 1)
+        return Y.reshape(shape) if add_to is None else add_to
 
 
 def block_diagonal_product(blocks: np.ndarray, x: np.ndarray) -> np.ndarray:

@@ -1,9 +1,9 @@
 """Algebraic multigrid on the lattice (:class:`LatticeAMG`): a smoothed-aggregation hierarchy of
 an SPD lattice matrix with node-block Chebyshev smoothing, set up once and used as the
 preconditioner of conjugate gradients for static equilibrium (:meth:`LatticeAMG.solve`, :func:`pcg`,
-:mod:`sc_fem.fem.static`) and of LOBPCG for the modes (its V-cycle on a block of vectors,
-:meth:`LatticeAMG.operator`, :mod:`sc_fem.fem.eigen`). The products with the finest matrix are
-those of :mod:`sc_fem.fem.bsr`."""
+:mod:`sc_fem.fem.static`) and of LOBPCG for the modes (its V-cycle on a block of vectors, in
+float32 there, :meth:`LatticeAMG.operator`, :mod:`sc_fem.fem.eigen`). Every level's products
+(``A``, ``P`` and ``P.T``) are those of :mod:`sc_fem.fem.bsr`."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator
 
 from .._jit import blas_single_threaded, choose_kernel
+from ..errors import InputError
 from ..lattice.cubes import CubeModel
 from .bsr import NodeBlockProduct, block_diagonal_product, node_blocks
 
@@ -47,8 +48,10 @@ took 1-5 s at 195,759 DOFs; these take ~0.2 s and are within a few per cent)."""
 
 
 class _Level:
-    """One level of :class:`LatticeAMG`: ``A`` as node blocks, the inverse (square root) of its
-    block diagonal, the spectral-radius estimate, and (but on the coarsest) ``P`` and ``R``."""
+    """One level of :class:`LatticeAMG`: ``A`` as node blocks, the inverse of its block diagonal,
+    the spectral-radius estimate, and (but on the coarsest) the prolongator ``P``; after
+    :meth:`lower`, the V-cycle's products (``smoothing`` with ``A``, ``P`` and ``P.T``) in the
+    V-cycle's precision."""
 
     def __init__(self, A: sp.bsr_matrix, kernel: str, seed: int) -> None:
         self.A = A
@@ -68,6 +71,33 @@ class _Level:
         self._Dhalf = np.einsum("nij,nj,nkj->nik", V, s, V)
         self.rho = _lanczos_max(lambda v: self.dscale(self(self.dscale(v, half=True)), half=True), A.shape[0], seed)
         self.P = self.R = None
+        self.smoothing, self._restrict, self._prolong, self._kernel = self._product, None, None, kernel
+
+    def lower(self, dtype: np.dtype, keep: bool) -> None:
+        """After the set-up: the V-cycle's matrices in ``dtype``, their products compiled when numba is.
+
+        Parameters
+        ----------
+        dtype : numpy.dtype
+            float64 or float32: ``A`` for the smoother, ``D^-1`` (n // bs, bs, bs) and ``P`` in it
+            (float32 halves their memory and the bytes a sweep reads); ``D^-1/2`` (the Lanczos
+            estimate's) is dropped, and no ``R`` is kept: the restriction is the product with
+            ``P.T`` from ``P``'s blocks (:class:`~sc_fem.fem.bsr.NodeBlockProduct`).
+        keep : bool
+            ``A`` and its float64 products stay (the finest level's, which LOBPCG and CG use; a
+            float32 smoother then has its own copy, half the size), else ``A`` itself is lowered.
+        """
+        cast = (lambda m: m) if dtype == np.float64 else (
+            lambda m: sp.bsr_matrix((m.data.astype(dtype), m.indices, m.indptr), shape=m.shape))
+        if not keep:
+            self.A = cast(self.A)
+            self._product = NodeBlockProduct(self.A, self._kernel)
+        self.smoothing = self._product if self.A.dtype == dtype else NodeBlockProduct(cast(self.A), self._kernel)
+        self.Dinv, self._Dhalf = self.Dinv.astype(dtype), None      # D^-1/2 served the Lanczos estimate only
+        if self.P is not None:                # R = P^T from P's own blocks when compiled (R not kept)
+            self.P, self.R = cast(self.P), None
+            self._prolong = NodeBlockProduct(self.P, self._kernel)
+            self._restrict = NodeBlockProduct(self.P, self._kernel, transpose=True)
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         """``A @ x``, ``x`` of shape (n,) or (n, k)."""
@@ -78,17 +108,21 @@ class _Level:
         return block_diagonal_product(self._Dhalf if half else self.Dinv, x)
 
     def chebyshev(self, x: np.ndarray | None, b: np.ndarray) -> np.ndarray:
-        """:data:`CHEBYSHEV` smoothing of ``A x = b`` from ``x`` (``None``: from 0)."""
+        """:data:`CHEBYSHEV` smoothing of ``A x = b`` from ``x`` (``None``: from 0; else ``x`` is
+        updated in place and returned)."""
         hi = CHEBYSHEV["safety"] * self.rho
         lo = hi / CHEBYSHEV["ratio"]
         theta, delta = 0.5 * (hi + lo), 0.5 * (hi - lo)
         sigma = theta / delta
         rho = 1.0 / sigma
-        r = self.dscale(b) if x is None else self._product.scaled_residual(self.Dinv, x, b)
+        r = self.dscale(b) if x is None else self.smoothing.scaled_residual(self.Dinv, x, b)
         d = r / theta
-        x = d.copy() if x is None else x + d
+        if x is None:
+            x = d.copy()
+        else:                                   # the caller's x (the V-cycle's own), updated in place
+            x += d
         for _ in range(CHEBYSHEV["degree"] - 1):
-            r += self._product.scaled_residual(self.Dinv, d, None)
+            self.smoothing.scaled_residual(self.Dinv, d, None, add_to=r)
             rho_new = 1.0 / (2.0 * sigma - rho)
             d *= rho_new * rho
             d += (2.0 * rho_new / delta) * r
@@ -141,10 +175,17 @@ class LatticeAMG:
     max_coarse : int
         Largest coarsest level, solved densely.
     kernel : {"auto", "numba", "numpy"}
-        The finest level's products: compiled (numba; on every core from :data:`~sc_fem.fem.bsr.PARALLEL_NNZ`
-        nonzeros) or scipy's; ``"auto"``: compiled when numba is installed.
+        Every level's products (the smoother's, ``P``'s and ``R``'s): compiled (numba; on every core
+        from :data:`~sc_fem.fem.bsr.PARALLEL_NNZ` nonzeros) or scipy's; ``"auto"``: compiled when
+        numba is installed.
     seed : int
         Seed of the Lanczos start vectors.
+    dtype : {numpy.float64, numpy.float32}
+        Precision of the V-cycle (its matrices and work vectors; the set-up is in float64, and
+        :meth:`vcycle` takes and returns float64). float32 halves the hierarchy's memory and the
+        bytes a sweep reads, the finest ``A`` then kept in both (its float64 products are
+        ``levels[0]``'s); an inexact preconditioner, enough for LOBPCG (see
+        :data:`sc_fem.fem.eigen.VCYCLE_DTYPE`), while CG to 1e-8 keeps float64.
 
     Attributes
     ----------
@@ -155,10 +196,14 @@ class LatticeAMG:
     """
 
     def __init__(self, A: sp.spmatrix, near_null: np.ndarray | None = None, *, aggregates: np.ndarray | None = None,
-                 blocksize: int = 3, max_coarse: int = 600, kernel: str = "auto", seed: int = 0) -> None:
+                 blocksize: int = 3, max_coarse: int = 600, kernel: str = "auto", seed: int = 0,
+                 dtype=np.float64) -> None:
         import time
 
         t0 = time.perf_counter()
+        self.dtype = np.dtype(dtype)
+        if self.dtype not in (np.float64, np.float32):
+            raise InputError(f"dtype must be float64 or float32, got {self.dtype}")
         with blas_single_threaded():            # OpenBLAS's spinning threads starve numba's
             self._build(A, near_null, aggregates, blocksize, max_coarse, kernel, seed)
         self.seconds = time.perf_counter() - t0
@@ -179,7 +224,7 @@ class LatticeAMG:
         B = np.asarray(near_null, dtype=np.float64)
         self.levels: list[_Level] = []
         while True:
-            lvl = _Level(Ab, kernel if not self.levels else "numpy", seed + len(self.levels))
+            lvl = _Level(Ab, kernel, seed + len(self.levels))
             self.levels.append(lvl)
             nb = Ab.shape[0] // lvl.bs
             if Ab.shape[0] <= max_coarse or len(self.levels) == 10:
@@ -197,23 +242,30 @@ class LatticeAMG:
             U = np.einsum("pij,pjk->pik", ((PROLONGATION_OMEGA / lvl.rho) * lvl.Dinv)[rows], AT.data)
             P = sp.bsr_matrix(T - sp.bsr_matrix((U, AT.indices, AT.indptr), shape=AT.shape),
                               blocksize=T.blocksize)
-            lvl.P, lvl.R = P, sp.bsr_matrix(P.T)
-            Ab = sp.bsr_matrix(lvl.R @ (Ab @ P), blocksize=(P.blocksize[1],) * 2)
+            lvl.P = P
+            Ab = sp.bsr_matrix(sp.bsr_matrix(P.T) @ (Ab @ P), blocksize=(P.blocksize[1],) * 2)
             Ab.sort_indices()
         c = self.levels[-1].A.toarray()
         self._coarse = _coarse_solver(0.5 * (c + c.T))
+        for i, lvl in enumerate(self.levels):
+            lvl.lower(self.dtype, keep=i == 0)
         self.kernel = kernel
         self.shape = A.shape
 
-    def vcycle(self, b: np.ndarray, i: int = 0) -> np.ndarray:
+    def vcycle(self, b: np.ndarray) -> np.ndarray:
         """One V-cycle for ``A x = b``, ``b`` of shape (n,) or a block (n, k), from ``x = 0``: the
         preconditioner (symmetric positive definite: the same Chebyshev polynomial before and after
-        the coarse correction)."""
+        the coarse correction), run in :attr:`dtype`; ``x`` float64, the shape of ``b``."""
+        x = self._cycle(np.ascontiguousarray(b, dtype=self.dtype), 0)
+        return x.astype(np.float64, copy=False)
+
+    def _cycle(self, b: np.ndarray, i: int) -> np.ndarray:
         if i == len(self.levels) - 1:
-            return self._coarse(b)
+            return np.asarray(self._coarse(b), dtype=self.dtype)
         lvl = self.levels[i]
         x = lvl.chebyshev(None, b)
-        x += lvl.P @ self.vcycle(lvl.R @ (b - lvl(x)), i + 1)
+        r = lvl.smoothing(x)
+        x += lvl._prolong(self._cycle(lvl._restrict(np.subtract(b, r, out=r)), i + 1))
         return lvl.chebyshev(x, b)
 
     def solve(self, b: np.ndarray, *, tol: float = 1e-8, maxiter: int = 500,
