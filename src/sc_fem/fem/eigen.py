@@ -37,6 +37,7 @@ asking again for more eigenpairs costs no second setup; :func:`solve_eigen` is t
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -296,8 +297,6 @@ class EigenSolver:
         return X, {}
 
     def _lobpcg(self, k: int) -> tuple[np.ndarray, dict]:
-        import warnings
-
         m = min(self.n - 1, lobpcg_block(k))      # a few extra vectors speed convergence
         X = np.random.default_rng(self.seed).standard_normal((self.n, m))
         if (B := self.near_null) is not None:      # start in the rigid space: those modes converge at once

@@ -7,8 +7,11 @@ float32 there, :meth:`LatticeAMG.operator`, :mod:`sc_fem.fem.eigen`). Every leve
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import scipy.sparse as sp
+from scipy.linalg import LinAlgError, cho_factor, cho_solve
 from scipy.sparse.linalg import LinearOperator
 
 from .._jit import blas_single_threaded, choose_kernel
@@ -20,8 +23,6 @@ def _coarse_solver(a: np.ndarray):
     """``b -> A^-1 b`` for the dense coarsest matrix of the hierarchy: a Cholesky factor when
     ``A`` is positive definite (the shifted ``K - sigma M`` always is), else the pseudo-inverse
     (pyamg's default, an SVD: 3 s for a 1,900-DOF coarsest level against 0.05 s for Cholesky)."""
-    from scipy.linalg import LinAlgError, cho_factor, cho_solve
-
     try:
         factor = cho_factor(a, lower=True, check_finite=False)
     except LinAlgError:
@@ -198,8 +199,6 @@ class LatticeAMG:
     def __init__(self, A: sp.spmatrix, near_null: np.ndarray | None = None, *, aggregates: np.ndarray | None = None,
                  blocksize: int = 3, max_coarse: int = 600, kernel: str = "auto", seed: int = 0,
                  dtype=np.float64) -> None:
-        import time
-
         t0 = time.perf_counter()
         self.dtype = np.dtype(dtype)
         if self.dtype not in (np.float64, np.float32):
