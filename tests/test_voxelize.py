@@ -62,6 +62,16 @@ def test_hash_samples_matches_loop_oracle(rng):
     for k in vals:
         np.testing.assert_allclose(avg[k], a2[k], rtol=1e-12)
     assert np.all(cells < dims)
+    # quantities of a few samples summed per cube (the cut cubes' moments): against a loop
+    rows = rng.choice(3000, 400, replace=False)
+    extra = rng.normal(size=(400, 27))
+    _, _, got = hash_samples(pts, masses, vals, origin, pitch, dims, row_sums={"m": (rows, extra)})
+    want = np.zeros((len(cells), 27))
+    lin = np.ravel_multi_index(cells.T, dims)
+    for r, e in zip(rows, extra):                                    # loop over samples: the oracle
+        i = np.clip(np.floor((pts[r] - origin) / pitch).astype(int), 0, dims - 1)
+        want[np.searchsorted(lin, np.ravel_multi_index(i, dims))] += e
+    np.testing.assert_allclose(got["m"], want, rtol=1e-12, atol=1e-12)
 
 
 # ---------------------------------------------------------------- mass and material

@@ -227,13 +227,18 @@ class NodeBlockProduct:
         self.node = A.blocksize == (3, 3) and A.shape[0] == A.shape[1] and not self.transpose
         self.parallel = A.nnz >= PARALLEL_NNZ
 
+    def _parallel(self, x: np.ndarray) -> bool:
+        """Whether a product with ``x`` (n,) or (n, k) runs on every core: :data:`PARALLEL_NNZ`
+        nonzeros, or :data:`PARALLEL_WORK` nonzeros times columns."""
+        return self.parallel or (x.ndim == 2 and self.A.nnz * x.shape[1] >= PARALLEL_WORK)
+
     def __call__(self, x: np.ndarray) -> np.ndarray:
         A = self.A
         if not self.fast:
             return A @ np.asarray(x, dtype=self.dtype)
         x = np.ascontiguousarray(x, dtype=self.dtype)
         n = len(A.indptr) - 1
-        parallel = self.parallel or (x.ndim == 2 and A.nnz * x.shape[1] >= PARALLEL_WORK)
+        parallel = self._parallel(x)
         if self.transpose:                     # Y = A^T X: each part of the rows adds into its own Y
             X = x.reshape(x.shape[0], -1)
             Ys = np.zeros((T_PARTS if parallel else 1, self.shape[0], X.shape[1]), dtype=self.dtype)
@@ -287,7 +292,7 @@ class NodeBlockProduct:
         X = np.ascontiguousarray(x, dtype=dt).reshape(shape[0], -1)
         Bm = np.empty((0, X.shape[1]), dt) if b is None else np.ascontiguousarray(b, dtype=dt).reshape(X.shape)
         Y = np.empty_like(X) if add_to is None else add_to.reshape(X.shape)
-        if self.parallel or A.nnz * X.shape[1] >= PARALLEL_WORK:
+        if self._parallel(X):
             _bsr3_dres(A.indptr, A.indices, A.data, dinv, X, Bm, Y, add_to is not None)
         else:
             _bsr3_dres_rows(A.indptr, A.indices, A.data, dinv, X, Bm, Y, add_to is not None, 0, len(A.indptr) - 1)

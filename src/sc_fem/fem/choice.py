@@ -60,9 +60,6 @@ def choose_element(scene, element: str = AUTO, *, lumped: bool = False) -> tuple
     partial = bool(np.any(np.asarray(model.fraction) < 1.0 - 1e-12))
     need = surface and ((chosen == AUTO and not lumped) or (chosen not in DEGREES and partial))
     wall = thinnest_walls(model, scene.mesh.vertices, scene.faces) if need else float("inf")
-    shell = float(model.info.get("shell_thickness", 0.0) or 0.0)
-    if need and shell > 0 and model.info.get("solid_parts", 1) == 0:
-        wall = min(wall, shell)           # shells alone: their walls are the shell (2 V / A counts one side)
     longest = float(np.ptp(model.nodes, axis=0).max())
     thin = wall < THIN_WALLS * longest
     if chosen != AUTO:

@@ -11,7 +11,7 @@ factorization that follows (:func:`sc_fem.fem.linsolve.factorize` with ``analysi
 order the matrix a second time. From the fill follow shift-invert's predicted time
 (:func:`shift_invert_seconds`, :data:`FILL_SPEED_MODEL`) and memory
 (:func:`sc_fem.fem.options.factor_memory_estimate`), and LOBPCG's: a set-up plus iterations, more on
-a thin shape than on a compact solid (:func:`lobpcg_factor`), times their cost (:func:`lobpcg_seconds`).
+a thin shape than on a compact solid (:func:`lobpcg_iterations`), times their cost (:func:`lobpcg_seconds`).
 """
 
 from __future__ import annotations
@@ -327,7 +327,7 @@ iterations times the cost of one.
   touch each entry a fixed number of times; per entry they slow down as the block outgrows the
   caches, ``gamma``).
 * Iterations (:func:`lobpcg_iterations`): a compact solid's ``iterations`` (the first round of
-  ``LOBPCG_ROUNDS``) times :func:`lobpcg_factor`, ``min((q0 / q) ** beta, cap)`` for a fill
+  ``LOBPCG_ROUNDS``) times ``min((q0 / q) ** beta, cap)`` for a fill
   ``q = nnz(L) / n^(4/3)`` below ``q0``: thin, slender members fill little, and the lattice
   multigrid preconditions them worse.
 
@@ -341,26 +341,9 @@ solids' (bunny, spot, the held cantilever: 23).
 """
 
 
-def lobpcg_factor(analysis: FillAnalysis) -> float:
-    """How many times a compact solid's iterations LOBPCG is predicted to take (:data:`LOBPCG_FILL_MODEL`).
-
-    Parameters
-    ----------
-    analysis : FillAnalysis
-        The fill of the shifted matrix.
-
-    Returns
-    -------
-    float
-        ``min((q0 / q) ** beta, cap)`` for ``q = nnz(L) / n^(4/3) < q0``, else 1.
-    """
-    m = LOBPCG_FILL_MODEL
-    q = analysis.nnz_l / max(analysis.n, 1) ** (4.0 / 3.0)
-    return float(min(max(m["q0"] / max(q, 1e-12), 1.0) ** m["beta"], m["cap"]))
-
-
 def lobpcg_iterations(analysis: FillAnalysis) -> float:
-    """LOBPCG's predicted iterations: ``LOBPCG_FILL_MODEL["iterations"] * lobpcg_factor(analysis)``.
+    """LOBPCG's predicted iterations (:data:`LOBPCG_FILL_MODEL`): a compact solid's ``iterations``,
+    times ``min((q0 / q) ** beta, cap)`` when the fill ``q = nnz(L) / n^(4/3)`` is below ``q0``.
 
     Parameters
     ----------
@@ -372,7 +355,9 @@ def lobpcg_iterations(analysis: FillAnalysis) -> float:
     float
         Iterations (not rounded: the model's mean over the shapes it was fitted to).
     """
-    return LOBPCG_FILL_MODEL["iterations"] * lobpcg_factor(analysis)
+    m = LOBPCG_FILL_MODEL
+    q = analysis.nnz_l / max(analysis.n, 1) ** (4.0 / 3.0)
+    return m["iterations"] * float(min(max(m["q0"] / max(q, 1e-12), 1.0) ** m["beta"], m["cap"]))
 
 
 def lobpcg_iteration_seconds(n: int, k: int) -> float:

@@ -71,7 +71,7 @@ class _Level:
         self.Dinv = np.einsum("nij,nj,nkj->nik", V, s * s, V)
         self._Dhalf = np.einsum("nij,nj,nkj->nik", V, s, V)
         self.rho = _lanczos_max(lambda v: self.dscale(self(self.dscale(v, half=True)), half=True), A.shape[0], seed)
-        self.P = self.R = None
+        self.P = None
         self.smoothing, self._restrict, self._prolong, self._kernel = self._product, None, None, kernel
 
     def lower(self, dtype: np.dtype, keep: bool) -> None:
@@ -96,7 +96,7 @@ class _Level:
         self.smoothing = self._product if self.A.dtype == dtype else NodeBlockProduct(cast(self.A), self._kernel)
         self.Dinv, self._Dhalf = self.Dinv.astype(dtype), None      # D^-1/2 served the Lanczos estimate only
         if self.P is not None:                # R = P^T from P's own blocks when compiled (R not kept)
-            self.P, self.R = cast(self.P), None
+            self.P = cast(self.P)
             self._prolong = NodeBlockProduct(self.P, self._kernel)
             self._restrict = NodeBlockProduct(self.P, self._kernel, transpose=True)
 

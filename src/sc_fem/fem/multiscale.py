@@ -41,7 +41,7 @@ from ..lattice.cubes import CubeModel
 from ..lattice.grid import estimate_bytes
 from ..lattice.options import DEFAULT_SUBSAMPLES
 from ..lattice.topology import HEX_CORNERS
-from ..lattice.walls import thinnest_walls
+from ..lattice.walls import shell_thickness, thinnest_walls
 from .finemodel import FineSystem, fine_system
 from .lagrange import shape_functions
 from .linsolve import factorize
@@ -59,6 +59,14 @@ FINE_PER_WALL = 1.6
 """The automatic refinement puts a fine cube edge of about the thin walls' thickness / this
 (:func:`choose_refine`): on the I-section (walls 5-8 mm) 1.6 gives 16 fine cubes per cube edge at
 resolution 16, the fine model (trilinear cubes at 256) then within 1-1.5 % of the conforming reference."""
+
+FINE_PER_SHELL = 1.0
+"""For a model of shells alone (open sheets), a fine cube edge of at least the shell's thickness /
+this: a shell is one layer of fine cubes holding its mass (its filled fraction the shell's thickness
+over the fine cube's), so a fine cube thinner than the shell makes it too thin and soft and a thicker
+one a little stiff (a 1 m, 10 mm sheet at 8 cubes against Kirchhoff's free plate: fine cubes of
+6.3 mm 0.62x, of 9.6 mm 0.96x, of 10.4 mm (this) 1.04x, of 12.5 mm 1.13x; a 15 mm sheet 1.04x; a
+4 mm one 1.30x, its fine cubes held at 5.2 mm by :data:`MAX_REFINE`)."""
 
 MAX_REFINE = 24
 """The most fine cubes per cube edge the automatic refinement takes."""
@@ -78,10 +86,8 @@ def choose_refine(model: CubeModel, vertices: np.ndarray, faces: np.ndarray,
     """Fine cubes per cube edge for the multiscale cubes of ``model``: a fine cube edge of about the
     thin walls' thickness / :data:`FINE_PER_WALL`, at least 2 and at most :data:`MAX_REFINE`, the
     fine model under :data:`FINE_BUDGET` fine cubes and its voxelization (surface samples
-    :data:`FINE_SPACING` of a fine cube apart) within ``max_memory``. An open sheet's walls are
-    measured here as twice its shell (``2 V / A`` counts one side), on purpose: a shell stays one
-    layer of fine cubes, so fine cubes thinner than the shell would make it too thin and too soft (a
-    10 mm sheet at 8 cubes: 0.62x Kirchhoff's plate with fine cubes for 10 mm, +13 % for 20 mm).
+    :data:`FINE_SPACING` of a fine cube apart) within ``max_memory``. A model of shells alone takes
+    a fine cube edge of the shell's thickness / :data:`FINE_PER_SHELL` instead.
 
     Parameters
     ----------
@@ -102,7 +108,11 @@ def choose_refine(model: CubeModel, vertices: np.ndarray, faces: np.ndarray,
     wall = thinnest_walls(model, vertices, faces)
     if not np.isfinite(wall):
         return 2, wall
-    s = int(np.clip(np.ceil(FINE_PER_WALL * model.pitch / max(wall, 1e-12 * model.pitch)), 2, MAX_REFINE))
+    per = model.pitch / max(wall, 1e-12 * model.pitch)
+    if shell_thickness(model) is None:
+        s = int(np.clip(np.ceil(FINE_PER_WALL * per), 2, MAX_REFINE))
+    else:                                     # fine cubes no thinner than the shell they hold
+        s = int(np.clip(np.floor(FINE_PER_SHELL * per), 2, MAX_REFINE))
     filled = float(np.sum(model.fraction))                     # in cubes
     tri = np.asarray(vertices, dtype=float)[np.asarray(faces, dtype=np.int64)]
     surface = 0.5 * float(np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()) \

@@ -25,7 +25,7 @@ from ..errors import InputError, SolverError
 
 # fill_analysis and its size limit are re-exported: the automatic choice's names stay importable from here
 from .fill import (FILL_ANALYSIS_MAX_DOFS, LOBPCG_FILL_MODEL, fill_analysis, lobpcg_block,  # noqa: F401
-                   lobpcg_factor, lobpcg_seconds, shift_invert_seconds)
+                   lobpcg_seconds, shift_invert_seconds)
 from .linsolve import BACKENDS, SystemSolver
 
 if TYPE_CHECKING:

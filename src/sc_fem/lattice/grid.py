@@ -11,7 +11,7 @@ from .._validate import positive_int, positive_scalar
 from ..errors import InputError, MaterialError, ResolutionError
 from ..geometry.sampling import grid_counts
 from .cubes import voxel_index
-from .options import DEFAULT_RESOLUTION, MAX_RESOLUTION
+from .options import DEFAULT_RESOLUTION, MAX_RESOLUTION, check_resolution
 
 SPACING_FRACTION = 0.125   # default sample spacing = pitch / 8
 _BYTES_PER_GRID_CELL = 6   # bool occupancy + int32 labels
@@ -32,9 +32,7 @@ def grid_for(bounds: np.ndarray, *, resolution: int | None = None, pitch: float 
     if resolution is not None and pitch is not None:
         raise InputError("give resolution or pitch, not both")
     if pitch is None:
-        res = positive_int(DEFAULT_RESOLUTION if resolution is None else resolution, "resolution")
-        if res > MAX_RESOLUTION:
-            raise ResolutionError(f"resolution {res} is beyond any machine's memory (max {MAX_RESOLUTION})")
+        res = check_resolution(positive_int(DEFAULT_RESOLUTION if resolution is None else resolution, "resolution"))
         pitch = float(extent.max()) / res
     else:
         pitch = positive_scalar(pitch, "pitch")
@@ -149,10 +147,10 @@ def hash_samples(points: np.ndarray, masses: np.ndarray, values: dict[str, np.nd
         raise MaterialError("a cube received zero mass; check density/mass values")
     averages = {k: np.bincount(inv, weights=masses * v, minlength=len(uniq)) / cube_mass for k, v in values.items()}
     averages.update({k: np.bincount(inv, weights=v, minlength=len(uniq)) for k, v in (sums or {}).items()})
-    for k, (rows, vals) in (row_sums or {}).items():
-        at = inv[rows]
-        averages[k] = np.stack([np.bincount(at, weights=vals[:, j], minlength=len(uniq))   # loop over columns
-                                for j in range(vals.shape[1])], axis=1).reshape(len(uniq), vals.shape[1])
+    for k, (rows, vals) in (row_sums or {}).items():       # (cube, column) pairs in one bincount
+        c = vals.shape[1]
+        slot = (inv[rows][:, None] * c + np.arange(c)).ravel()
+        averages[k] = np.bincount(slot, weights=np.ravel(vals), minlength=len(uniq) * c).reshape(len(uniq), c)
     cells = np.stack(np.unravel_index(uniq // n_p, dims), axis=1).astype(np.int64)
     if piece is not None:
         averages["piece"] = (uniq % n_p).astype(np.int64)

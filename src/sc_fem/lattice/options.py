@@ -22,6 +22,14 @@ DEFAULT_RESOLUTION = 32    # cubes along the longest axis when neither resolutio
 MAX_RESOLUTION = 100_000   # cubes along an axis beyond any machine's memory
 
 
+def check_resolution(resolution: int) -> int:
+    """``resolution`` (cubes along the longest axis, a positive int already), refused beyond
+    :data:`MAX_RESOLUTION` with a :class:`~sc_fem.errors.ResolutionError`."""
+    if resolution > MAX_RESOLUTION:
+        raise ResolutionError(f"resolution {resolution} is beyond any machine's memory (max {MAX_RESOLUTION})")
+    return resolution
+
+
 @dataclass(frozen=True, eq=False)
 class VoxelOptions:
     """How a mesh becomes cubes: grid, units, material and the Squashing Cubes choices.
@@ -132,9 +140,8 @@ class VoxelOptions:
         for name in ("resolution", "n_samples"):
             if getattr(self, name) is not None:
                 norm[name] = positive_int(getattr(self, name), name)
-        if norm.get("resolution", 0) > MAX_RESOLUTION:
-            raise ResolutionError(f"resolution {norm['resolution']} is beyond any machine's memory "
-                                  f"(max {MAX_RESOLUTION})")
+        if "resolution" in norm:
+            check_resolution(norm["resolution"])
         for name in ("pitch", "mass", "spacing", "shell_thickness", "max_memory"):
             if getattr(self, name) is not None:
                 norm[name] = positive_scalar(getattr(self, name), name)

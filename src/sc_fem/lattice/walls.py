@@ -57,13 +57,32 @@ def wall_thickness(model: CubeModel, vertices: np.ndarray, faces: np.ndarray) ->
     return 2.0 * v_blk[sel] / a_blk[sel], own[sel]
 
 
+def shell_thickness(model: CubeModel) -> float | None:
+    """The shells' thickness (model units) of a model made of shells alone (open sheets: the
+    voxelizer's ``info`` has shells and no solid part), None for any other model.
+
+    Parameters
+    ----------
+    model : CubeModel
+        The lattice.
+
+    Returns
+    -------
+    float or None
+    """
+    shell = float(model.info.get("shell_thickness", 0.0) or 0.0)
+    return shell if shell > 0 and model.info.get("solid_parts", 1) == 0 else None
+
+
 THIN_PERCENTILE = 10.0
 """The walls' thickness is this percentile (weighted by surface area) of the cubes' ``2 V / A``."""
 
 
 def thinnest_walls(model: CubeModel, vertices: np.ndarray, faces: np.ndarray) -> float:
     """The thickness of a model's thin walls: the area-weighted :data:`THIN_PERCENTILE` percentile of
-    :func:`wall_thickness` (model units; ``inf`` without partly filled cubes).
+    :func:`wall_thickness` (model units; ``inf`` without partly filled cubes). A model of shells
+    alone has walls of exactly its shells' thickness (:func:`shell_thickness`): ``2 V / A`` counts one
+    side of a sheet and would give twice it.
 
     Parameters
     ----------
@@ -78,6 +97,8 @@ def thinnest_walls(model: CubeModel, vertices: np.ndarray, faces: np.ndarray) ->
     -------
     float
     """
+    if (shell := shell_thickness(model)) is not None:
+        return shell
     t, a = wall_thickness(model, vertices, faces)
     if not len(t):
         return float("inf")
