@@ -13,7 +13,9 @@ import trimesh
 
 import sc_fem
 from sc_fem._jit import available as numba_available
-from sc_fem.geometry.inside import crossing_number, mesh_parts
+from sc_fem.geometry.inside import mesh_parts
+from sc_fem.geometry import inside_jit
+from sc_fem.geometry.rays import _bin_faces, crossing_number
 from sc_fem.lattice.moments import EXPONENTS, _triangle_rule, piece_integrals
 
 KERNELS = ["numpy"] + (["numba"] if numba_available() else [])
@@ -151,3 +153,30 @@ def test_piece_integrals_match_a_loop_oracle_and_the_compiled_kernel(rng):
         inner_j, column_j = piece_integrals(pieces, cells, origin, pitch, kernel="numba")
         np.testing.assert_allclose(inner_j, inner, rtol=1e-13, atol=1e-16)
         np.testing.assert_allclose(column_j, column, rtol=1e-13, atol=1e-16)
+
+
+def _bins_by_loop(tri, lo, size, nb):
+    """The (bin, face) lists face by face (the oracle of both binning paths)."""
+    bins = [[] for _ in range(nb * nb)]
+    for f, t in enumerate(tri):                # a loop over faces: the oracle
+        b0 = np.clip(np.floor((t[:, :2].min(0) - lo) / size).astype(int), 0, nb - 1)
+        b1 = np.clip(np.floor((t[:, :2].max(0) - lo) / size).astype(int), 0, nb - 1)
+        for ix in range(b0[0], b1[0] + 1):
+            for iy in range(b0[1], b1[1] + 1):
+                bins[ix * nb + iy].append(f)
+    start = np.r_[0, np.cumsum([len(b) for b in bins])]
+    return start, np.array([f for b in bins for f in b], dtype=np.int64)
+
+
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_faces_are_binned_as_a_loop_over_faces_bins_them(kernel, rng):
+    mesh = _overlapping_solids()
+    tri = np.asarray(mesh.vertices)[np.asarray(mesh.faces)]
+    lo, hi = tri[:, :, :2].reshape(-1, 2).min(0), tri[:, :, :2].reshape(-1, 2).max(0)
+    for nb in (1, 7, 40):
+        size = np.maximum(hi - lo, 1e-300) / nb
+        start, bin_face = (inside_jit.bin_faces(tri, lo, size, nb) if kernel == "numba"
+                           else _bin_faces(tri, lo, size, nb))
+        want_start, want_face = _bins_by_loop(tri, lo, size, nb)
+        np.testing.assert_array_equal(start, want_start)
+        np.testing.assert_array_equal(bin_face, want_face)

@@ -140,7 +140,7 @@ def test_a_large_flat_hole_does_not_crowd_the_crossing_bins(rng):
 def test_a_point_one_rounding_step_inside_the_last_bin_is_inside():
     from sc_fem._jit import available
 
-    from sc_fem.geometry.inside import crossing_number
+    from sc_fem.geometry.rays import crossing_number
 
     lo, hi = 0.23643249400513433, 19.24620178356058
     box = trimesh.creation.box(bounds=[[lo, 0, 0], [hi, 1, 1]])

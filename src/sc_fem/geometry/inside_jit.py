@@ -1,18 +1,22 @@
-"""Compiled ray-crossing count of :func:`sc_fem.geometry.inside.crossing_number` (numba, optional).
+"""Compiled ray-crossing count of :func:`sc_fem.geometry.rays.crossing_number` (numba, optional).
 
 The numpy path expands every (point, face over its bin) pair into arrays; this kernel visits the
 same pairs point by point, with the same arithmetic in the same order (the edge signs
-of :func:`sc_fem.geometry.inside._edge_signs`, the face's height from the same sub-areas), so both
-count the same crossings. Without numba (the optional extra ``sc_fem[fast]``) the numpy path runs.
+of :func:`sc_fem.geometry.rays._edge_signs`, the face's height from the same sub-areas), so both
+count the same crossings. The faces are binned on the xy grid by a counting sort
+(:data:`bin_faces`) that gives the numpy path's arrays (a stable sort of the (bin, face) pairs)
+exactly. Without numba (the optional extra ``sc_fem[fast]``) the numpy path runs.
 """
 
 from __future__ import annotations
+
+import numpy as np
 
 from .._jit import compiled, compiled_parallel, prange
 
 
 def _edge_sign_py(ax, ay, bx, by, px, py):  # pragma: no cover - compiled
-    """Scalar :func:`sc_fem.geometry.inside._edge_signs`: side (+1, -1, 0) of ``p`` from ``a -> b``."""
+    """Scalar :func:`sc_fem.geometry.rays._edge_signs`: side (+1, -1, 0) of ``p`` from ``a -> b``."""
     swap = (ax > bx) or (ax == bx and ay > by)
     if swap:
         lx, ly, hx, hy = bx, by, ax, ay
@@ -62,3 +66,35 @@ def _crossings_py(q, tri, lo, hi, size, nb, start, bin_face, out):  # pragma: no
 
 crossings = compiled_parallel(_crossings_py)
 """The compiled :func:`_crossings_py`, its points split over the cores (None without numba)."""
+
+
+def _bin_faces_py(tri, lo, size, nb):  # pragma: no cover - compiled
+    """(bin, face) pairs of every face's xy box on the ``nb x nb`` grid of cells ``size`` from ``lo``,
+    grouped by bin (bin ``ix * nb + iy``), faces ascending within a bin: ``start`` (nb^2 + 1,), ``bin_face``."""
+    m = tri.shape[0]
+    box = np.empty((m, 4), np.int64)
+    count = np.zeros(nb * nb + 1, np.int64)
+    for f in range(m):
+        for a in range(2):
+            t0, t1, t2 = tri[f, 0, a], tri[f, 1, a], tri[f, 2, a]
+            b0 = int(np.floor((min(t0, t1, t2) - lo[a]) / size[a]))
+            b1 = int(np.floor((max(t0, t1, t2) - lo[a]) / size[a]))
+            box[f, 2 * a] = min(max(b0, 0), nb - 1)
+            box[f, 2 * a + 1] = min(max(b1, 0), nb - 1)
+        for ix in range(box[f, 0], box[f, 1] + 1):
+            for iy in range(box[f, 2], box[f, 3] + 1):
+                count[ix * nb + iy + 1] += 1
+    start = np.cumsum(count)
+    fill = start[:-1].copy()
+    bin_face = np.empty(start[-1], np.int64)
+    for f in range(m):
+        for ix in range(box[f, 0], box[f, 1] + 1):
+            for iy in range(box[f, 2], box[f, 3] + 1):
+                b = ix * nb + iy
+                bin_face[fill[b]] = f
+                fill[b] += 1
+    return start, bin_face
+
+
+bin_faces = compiled(_bin_faces_py)
+"""The compiled :func:`_bin_faces_py` (None without numba)."""

@@ -13,7 +13,8 @@ import numpy as np
 from .gridcut import cut_by_grid
 from .topology import unique_cells, voxel_index
 from .moments import FULL, box_moments, column_moments
-from ..geometry.inside import boundary_cone, crossing_number, winding_number
+from ..geometry.inside import boundary_cone, winding_number
+from ..geometry.rays import crossing_number
 from ..geometry.sampling import Samples, volume_samples
 
 OVERLAP_SAMPLES_PER_SIDE = 256
