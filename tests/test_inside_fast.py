@@ -180,3 +180,22 @@ def test_faces_are_binned_as_a_loop_over_faces_bins_them(kernel, rng):
         want_start, want_face = _bins_by_loop(tri, lo, size, nb)
         np.testing.assert_array_equal(start, want_start)
         np.testing.assert_array_equal(bin_face, want_face)
+
+
+@pytest.mark.skipif(not numba_available(), reason="the compiled kernel needs numba (extra 'fast')")
+def test_columns_of_points_through_vertices_count_alike_in_both_kernels(rng):
+    """Columns of points (through vertices, at the vertices' own heights and others', and on a
+    grid): the compiled kernel counts as the numpy path does."""
+    mesh = _overlapping_solids()
+    v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    lo, hi = v.min(0), v.max(0)
+    cols = (np.stack(np.meshgrid(np.linspace(lo[0], hi[0], 23), np.linspace(lo[1], hi[1], 19),
+                                 np.linspace(lo[2], hi[2], 31), indexing="ij"), -1).reshape(-1, 3))
+    through = v[rng.integers(0, len(v), 300)]
+    heights = v[rng.integers(0, len(v), (300, 7)), 2]
+    heights[:, 0] = through[:, 2]                                     # the vertex itself
+    on_vertices = np.concatenate([np.broadcast_to(through[:, None, :2], (300, 7, 2)), heights[..., None]], -1)
+    q = np.vstack([cols, on_vertices.reshape(-1, 3)])
+    assert len(q) > 15000
+    np.testing.assert_array_equal(crossing_number(v, f, q, kernel="numba"),
+                                  crossing_number(v, f, q, kernel="numpy", max_pairs=5000))
