@@ -81,9 +81,29 @@ def _add_at_masked_py(data, slot, vals, keep):  # pragma: no cover - compiled
             j += 1
 
 
+def _fill_nodes_py(data, vals, hexes, s, mstart, coloff, free, pair):  # pragma: no cover - compiled
+    """Add the scalar parts ``m_ab`` (entry ``(a, 0, b, 0)`` of each flattened 24 x 24 matrix of
+    ``vals`` (c, 576)) of cubes ``s : s + c`` into the node matrix ``data``, in place (the compact
+    mass, :mod:`sc_fem.fem.nodemass`); node ``i``'s row starts at ``mstart[i]``, its block ``o`` at
+    ``coloff[27 i + o] // 3``; fixed nodes (``free`` False) are skipped."""
+    for t in range(vals.shape[0]):
+        cube = s + t
+        for a in range(8):
+            na = hexes[cube, a]
+            if not free[na]:
+                continue
+            r = mstart[na]
+            for b in range(8):
+                nb = hexes[cube, b]
+                if free[nb]:
+                    data[r + coloff[27 * na + pair[a, b]] // 3] += vals[t, 72 * a + 3 * b]
+
+
 fill = compiled(_fill_py)
 """The compiled :func:`_fill_py` (None without numba)."""
 add_at = compiled(_add_at_py)
 """The compiled :func:`_add_at_py` (None without numba)."""
 add_at_masked = compiled(_add_at_masked_py)
 """The compiled :func:`_add_at_masked_py` (None without numba)."""
+fill_nodes = compiled(_fill_nodes_py)
+"""The compiled :func:`_fill_nodes_py` (None without numba)."""

@@ -142,6 +142,29 @@ def _bsr_t_block_py(indptr, indices, data, X, Ys):  # pragma: no cover - compile
         _bsr_t_rows(indptr, indices, data, X, Ys[t], t * n // parts, (t + 1) * n // parts)
 
 
+def _bsr3_split_rows_py(indptr, indices, hi, lo, X, Y, lo_row, hi_row):  # pragma: no cover - compiled
+    k = X.shape[1]
+    for i in range(lo_row, hi_row):             # Y = (hi + lo) X in float64 on the node rows, X (n, k)
+        r = 3 * i
+        for a in range(3):
+            for c in range(k):
+                Y[r + a, c] = 0.0
+        for p in range(indptr[i], indptr[i + 1]):
+            j = 3 * indices[p]
+            for a in range(3):               # hi + lo is exact in float64 (48 significant bits)
+                d0 = np.float64(hi[p, a, 0]) + np.float64(lo[p, a, 0])
+                d1 = np.float64(hi[p, a, 1]) + np.float64(lo[p, a, 1])
+                d2 = np.float64(hi[p, a, 2]) + np.float64(lo[p, a, 2])
+                for c in range(k):
+                    Y[r + a, c] += d0 * X[j, c] + d1 * X[j + 1, c] + d2 * X[j + 2, c]
+
+
+def _bsr3_split_py(indptr, indices, hi, lo, X, Y):  # pragma: no cover - compiled
+    n = len(indptr) - 1
+    for c in prange(CHUNKS):
+        _bsr3_split_rows(indptr, indices, hi, lo, X, Y, c * n // CHUNKS, (c + 1) * n // CHUNKS)
+
+
 # separate functions, not one compiled twice: numba's disk cache keys a function by name and line, and a
 # serial and a parallel build of one function overwrote each other
 _bsr3_rows = compiled(_bsr3_rows_py)
@@ -154,6 +177,8 @@ _bsr_rows = compiled(_bsr_rows_py)
 _bsr_block = compiled_parallel(_bsr_block_py)
 _bsr_t_rows = compiled(_bsr_t_rows_py)
 _bsr_t_block = compiled_parallel(_bsr_t_block_py)
+_bsr3_split_rows = compiled(_bsr3_split_rows_py)
+_bsr3_split = compiled_parallel(_bsr3_split_py)
 
 T_PARTS = 4
 """Row parts of a parallel transposed product, each adding into its own copy of the (short) result."""
@@ -201,6 +226,70 @@ def node_blocks(A: sp.spmatrix) -> sp.bsr_matrix:
     return sp.bsr_matrix((bdata, bidx, bptr), shape=A.shape)
 
 
+SPLIT_CHUNK = 1 << 20
+"""Blocks per chunk while :class:`SplitNodeBlocks` splits a matrix (a 72 MB float64 temporary)."""
+
+
+class SplitNodeBlocks:
+    """A float64 matrix of 3 x 3 node blocks stored as two float32 parts, ``A = hi + lo``: ``hi`` is
+    ``A`` rounded to float32 (the float32 V-cycle's smoother reads it alone, :meth:`high`) and ``lo``
+    the rounding error, rounded to float32 in turn. ``hi + lo`` carries 48 of float64's 53 significant
+    bits (``|A - (hi + lo)| <= 2^-48 |A|`` entry by entry), and both take the bytes of one float64
+    copy: a float32 V-cycle keeps its finest matrix once instead of in float64 and float32 both
+    (:meth:`sc_fem.fem.multigrid._Level.lower`). Its products (:class:`NodeBlockProduct`, compiled)
+    add ``hi + lo`` in float64.
+
+    Parameters
+    ----------
+    A : scipy.sparse.bsr_matrix, shape (n, n)
+        Float64, 3 x 3 blocks; its index arrays are shared.
+
+    Attributes
+    ----------
+    hi, lo : ndarray of float32, shape (nnzb, 3, 3)
+        The two parts, in ``A``'s units.
+    indptr, indices : ndarray of int
+        ``A``'s block pattern.
+    shape : tuple
+        ``(n, n)``.
+    """
+
+    dtype = np.dtype(np.float64)
+    blocksize = (3, 3)
+    format = "split"
+
+    def __init__(self, A: sp.bsr_matrix) -> None:
+        data = A.data
+        self.indptr, self.indices, self.shape = A.indptr, A.indices, A.shape
+        self.hi = data.astype(np.float32)
+        self.lo = np.empty_like(self.hi)
+        for s in range(0, len(data), SPLIT_CHUNK):        # loop over chunks of blocks: a bounded temporary
+            e = s + SPLIT_CHUNK
+            self.lo[s:e] = data[s:e] - self.hi[s:e]
+
+    @property
+    def nnz(self) -> int:
+        """Stored entries (9 per block)."""
+        return self.hi.size
+
+    def high(self) -> sp.bsr_matrix:
+        """``hi`` as a float32 BSR matrix (the arrays shared, no copy)."""
+        return sp.bsr_matrix((self.hi, self.indices, self.indptr), shape=self.shape)
+
+    def tobsr(self) -> sp.bsr_matrix:
+        """``hi + lo`` as a new float64 BSR matrix."""
+        data = self.hi.astype(np.float64)
+        data += self.lo
+        return sp.bsr_matrix((data, self.indices.copy(), self.indptr.copy()), shape=self.shape)
+
+    def tocsr(self) -> sp.csr_matrix:
+        """``hi + lo`` as a new float64 CSR matrix."""
+        return self.tobsr().tocsr()
+
+    def __matmul__(self, x: np.ndarray) -> np.ndarray:
+        return NodeBlockProduct(self, "numba")(x)
+
+
 class NodeBlockProduct:
     """``x -> A @ x`` (or ``A.T @ x``) for a BSR matrix ``A`` and ``x`` of shape (m,) or (m, k), in
     ``A``'s precision.
@@ -220,11 +309,14 @@ class NodeBlockProduct:
 
     def __init__(self, A: sp.bsr_matrix, kernel: str, transpose: bool = False) -> None:
         self.fast = choose_kernel(kernel) == "numba"
+        self.split = isinstance(A, SplitNodeBlocks)
+        if self.split and (transpose or not self.fast):
+            raise ValueError("a SplitNodeBlocks product is compiled and not transposed")
         self.transpose = bool(transpose) and self.fast
         self.A = sp.bsr_matrix(A.T) if transpose and not self.fast else A
         self.dtype = A.dtype
         self.shape = A.shape[::-1] if transpose else A.shape
-        self.node = A.blocksize == (3, 3) and A.shape[0] == A.shape[1] and not self.transpose
+        self.node = A.blocksize == (3, 3) and A.shape[0] == A.shape[1] and not self.transpose and not self.split
         self.parallel = A.nnz >= PARALLEL_NNZ
 
     def _parallel(self, x: np.ndarray) -> bool:
@@ -239,6 +331,14 @@ class NodeBlockProduct:
         x = np.ascontiguousarray(x, dtype=self.dtype)
         n = len(A.indptr) - 1
         parallel = self._parallel(x)
+        if self.split:                         # (hi + lo) X in float64, a vector as a one-column block
+            y = np.empty((A.shape[0],) + x.shape[1:])
+            X, Y = x.reshape(x.shape[0], -1), y.reshape(y.shape[0], -1)
+            if parallel:
+                _bsr3_split(A.indptr, A.indices, A.hi, A.lo, X, Y)
+            else:
+                _bsr3_split_rows(A.indptr, A.indices, A.hi, A.lo, X, Y, 0, n)
+            return y
         if self.transpose:                     # Y = A^T X: each part of the rows adds into its own Y
             X = x.reshape(x.shape[0], -1)
             Ys = np.zeros((T_PARTS if parallel else 1, self.shape[0], X.shape[1]), dtype=self.dtype)

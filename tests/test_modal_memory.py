@@ -1,0 +1,198 @@
+"""The lean paths of the modal pipeline: the compact mass, the released assembler, ``K - sigma M``
+with a compact ``M``, the float32 V-cycle's finest matrix split in two, the chunked AMG set-up, and
+the frequencies of ``sc_fem.modal`` through all of them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import sc_fem
+from sc_fem import _jit
+from sc_fem.fem import bsr, multigrid, nodemass
+from sc_fem.fem.assemble import _CHUNK, _PAIR_OFFSET, Assembler
+from sc_fem.fem.eigen import solve_eigen
+from sc_fem.fem.rigid import rigid_body_modes
+from sc_fem.fem.shift import ComponentMass, shift_in_place, shifted, without_zeros
+from sc_fem.lattice.cubes import CubeModel
+
+needs_numba = pytest.mark.skipif(not _jit.available(), reason="numba not installed")
+BOX = CubeModel.box((7, 4, 3), 0.1, youngs=1e7, poisson=0.3, density=1000.0)
+WHOLE = np.arange(3 * 6)                     # the first 6 nodes, all 3 components
+
+
+def _same(A: sp.csr_matrix, B: sp.csr_matrix) -> None:
+    assert A.shape == B.shape
+    np.testing.assert_array_equal(A.indptr, B.indptr)
+    np.testing.assert_array_equal(A.indices, B.indices)
+    np.testing.assert_array_equal(A.data, B.data)
+
+
+@pytest.mark.parametrize("kernel", [pytest.param("numba", marks=needs_numba), "numpy"])
+@pytest.mark.parametrize("fixed", [None, WHOLE, [0, 4, 5]])
+def test_compact_mass_is_the_full_mass_without_its_zeros(kernel, fixed):
+    """``mass(compact=True)``: bit for bit the shared-pattern ``M`` without its structural zeros, whole
+    nodes fixed or not (a node fixed in some components goes through the full ``M``)."""
+    asm = Assembler(BOX, "q1i", fixed_dofs=fixed, kernel=kernel)
+    full, compact = asm.mass(), asm.mass(compact=True)
+    _same(compact, without_zeros(full))
+    assert compact.nnz * 3 == full.nnz and compact.has_sorted_indices
+
+
+def test_compact_mass_of_partly_filled_cubes():
+    """A voxelized mesh's partly filled cubes (their mass distributed like the filled region): the
+    same compact ``M``, held or free."""
+    model = sc_fem.voxelize("builtin:chair", resolution=12)
+    assert model.stiffness == "moments"
+    for fix in (None, "z<min+0.01"):
+        fd = None if fix is None else sc_fem.fixed_dofs(sc_fem.fixed_nodes(model, fix))
+        asm = Assembler(model, "q1i", fixed_dofs=fd)
+        _same(asm.mass(compact=True), without_zeros(asm.mass()))
+
+
+@needs_numba
+def test_node_mass_kernel_matches_its_loop_oracle_and_numpy():
+    """The compiled scatter of the cubes' scalar mass blocks equals the same loop run by Python and
+    numpy's ``add.at`` of the same positions."""
+    from sc_fem.fem import assemble_jit
+    from sc_fem.fem.assemble_jit import fill_nodes
+    from sc_fem.fem.elements import cube_mass_chunks
+
+    asm = Assembler(BOX, "q1i", fixed_dofs=WHOLE)
+    vals = np.ascontiguousarray(cube_mass_chunks(BOX, BOX.mass)(0, BOX.n_cubes)).reshape(-1, 576)
+    free, mstart, hexes = asm._free3[:, 0], asm._rowstart[0] // 9, np.ascontiguousarray(BOX.hexes)
+    want = np.zeros(asm.nnz // 9)
+    assemble_jit._fill_nodes_py(want, vals, hexes, 0, mstart, asm._coloff, free, _PAIR_OFFSET)   # loop oracle
+    got = np.zeros_like(want)
+    fill_nodes(got, vals, hexes, 0, mstart, asm._coloff, free, _PAIR_OFFSET)
+    np.testing.assert_array_equal(got, want)
+    by_numpy = nodemass.node_values(Assembler(BOX, "q1i", fixed_dofs=WHOLE, kernel="numpy"),
+                                    cube_mass_chunks(BOX, BOX.mass), _CHUNK, _PAIR_OFFSET)
+    np.testing.assert_array_equal(by_numpy, want)
+
+
+def test_released_assembler_builds_its_pattern_again():
+    """After ``release()`` the pattern's arrays are gone; ``expand`` needs none of them, and the next
+    fill builds them again: the same matrices."""
+    asm = Assembler(BOX, "q1i", fixed_dofs=WHOLE)
+    K, M = asm.stiffness(), asm.mass()
+    asm.release()
+    assert "indices" not in vars(asm) and "_coloff" not in vars(asm)
+    u = asm.expand(np.ones(len(asm.free_dofs)))
+    assert u.shape == (BOX.n_nodes, 3) and "indices" not in vars(asm)
+    _same(asm.stiffness(), K)
+    _same(asm.mass(), M)
+    assert asm.nnz == K.nnz
+
+
+def test_shift_with_a_compact_mass_is_in_place_and_the_same():
+    """``K - sigma M`` with ``M`` on a pattern inside ``K``'s: written over ``K``, equal to the shift on
+    the shared pattern; ``shifted`` keeps ``K``'s pattern; an ``M`` entry outside ``K``'s pattern
+    leaves ``K`` untouched."""
+    asm = Assembler(BOX, "q1i", fixed_dofs=WHOLE)
+    K, M, Mc = asm.stiffness(), asm.mass(), asm.mass(compact=True)
+    sigma = -1e3
+    ref = (K - sigma * M).toarray()
+    scale = np.abs(ref).max()
+    new = shifted(K, Mc, sigma)
+    assert np.shares_memory(new.indices, K.indices) and new.nnz == K.nnz
+    np.testing.assert_allclose(new.toarray(), ref, rtol=0, atol=1e-15 * scale)
+    K1 = K.copy()
+    assert shift_in_place(K1, Mc, sigma) is K1
+    np.testing.assert_allclose(K1.toarray(), ref, rtol=0, atol=1e-15 * scale)
+    outside = Mc.tolil()
+    outside[0, K.shape[1] - 1] = 1.0                                   # no such entry in K
+    K2 = K.copy()
+    got = shift_in_place(K2, outside.tocsr(), sigma)
+    assert got is not K2
+    _same(K2, K)
+    np.testing.assert_allclose(got.toarray(), (K - sigma * outside).toarray(), rtol=0, atol=1e-15 * scale)
+
+
+def test_component_mass_of_the_compact_mass_is_that_of_the_full_one():
+    """The node matrix recognized in the compact ``M`` is the one of the shared-pattern ``M``; row
+    chunks of any size find it."""
+    asm = Assembler(BOX, "q1i", fixed_dofs=WHOLE)
+    a, b = ComponentMass.of(asm.mass()), ComponentMass.of(asm.mass(compact=True))
+    _same(a.m, b.m)
+    from sc_fem.fem import shift
+    old = shift._ROW_CHUNK
+    try:
+        shift._ROW_CHUNK = 5
+        _same(ComponentMass.of(asm.mass(compact=True)).m, a.m)
+    finally:
+        shift._ROW_CHUNK = old
+
+
+@needs_numba
+@pytest.mark.parametrize("parallel", [False, True])
+def test_split_node_blocks_hold_the_matrix_to_48_bits(parallel, monkeypatch):
+    """``SplitNodeBlocks``: ``hi + lo`` within 2^-48 of every entry, ``hi`` the float32 rounding (shared
+    by :meth:`high`), and its compiled product (a vector, a block; serial, parallel) the loop oracle of
+    ``hi + lo`` in float64."""
+    from test_spmm import bsr_loop_oracle
+
+    monkeypatch.setattr(bsr, "PARALLEL_NNZ", 0 if parallel else 10**12)
+    Kb = bsr.node_blocks(Assembler(BOX, "q1i", fixed_dofs=WHOLE).stiffness())
+    S = bsr.SplitNodeBlocks(Kb)
+    np.testing.assert_array_equal(S.hi, Kb.data.astype(np.float32))
+    exact = S.hi.astype(np.float64) + S.lo
+    assert np.all(np.abs(exact - Kb.data) <= 2.0**-48 * np.abs(Kb.data))
+    assert np.shares_memory(S.high().data, S.hi) and S.high().dtype == np.float32
+    np.testing.assert_array_equal(S.tobsr().data, exact)
+    np.testing.assert_array_equal(S.tocsr().toarray(), S.tobsr().toarray())
+    ref64 = sp.bsr_matrix((exact, Kb.indices, Kb.indptr), shape=Kb.shape)
+    X = np.random.default_rng(3).standard_normal((Kb.shape[0], 4))
+    want = bsr_loop_oracle(ref64, X)
+    prod = bsr.NodeBlockProduct(S, "numba")
+    assert prod.parallel == parallel
+    tol = 1e-13 * np.abs(want).max()
+    np.testing.assert_allclose(prod(X), want, rtol=0, atol=tol)
+    np.testing.assert_allclose(prod(X[:, 1]), want[:, 1], rtol=0, atol=tol)
+    np.testing.assert_allclose(S @ X, Kb @ X, rtol=0, atol=1e-12 * np.abs(want).max())
+    with pytest.raises(ValueError):
+        bsr.NodeBlockProduct(S, "numpy")
+
+
+@needs_numba
+def test_float32_v_cycle_keeps_its_finest_matrix_once():
+    """``LatticeAMG(dtype=float32)`` compiled: the finest ``A`` split in two, the smoother reading its
+    float32 part (no second copy), the float64 products within 2^-47 of ``A``'s."""
+    m = CubeModel.box((24, 4, 4), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
+    asm = Assembler(m, "q1i", fixed_dofs=np.arange(3 * 25))
+    K = asm.stiffness()
+    amg = multigrid.LatticeAMG(K, rigid_body_modes(m.nodes_m, asm.free_dofs), max_coarse=50, dtype=np.float32)
+    fine = amg.levels[0]
+    assert isinstance(fine.A, bsr.SplitNodeBlocks)
+    assert np.shares_memory(fine.smoothing.A.data, fine.A.hi)
+    X = np.random.default_rng(1).standard_normal((K.shape[0], 3))
+    np.testing.assert_allclose(fine(X), K @ X, rtol=0, atol=2.0**-46 * (abs(K) @ abs(X)).max())
+
+
+def test_chunked_set_up_builds_the_same_hierarchy(monkeypatch):
+    """The prolongator and the coarse matrix formed over chunks of rows: the finest ``P`` bit for bit,
+    the coarse matrices to round-off."""
+    m = CubeModel.box((24, 6, 5), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
+    asm = Assembler(m, "q1i", fixed_dofs=np.arange(3 * 42))
+    K, B = asm.stiffness(), rigid_body_modes(m.nodes_m, asm.free_dofs)
+    one = multigrid.LatticeAMG(K, B, max_coarse=50)
+    monkeypatch.setattr(multigrid, "SETUP_ROWS", 7)
+    assert len(multigrid._row_chunks(K.shape[0] // 3)) == multigrid.SETUP_CHUNKS
+    many = multigrid.LatticeAMG(K, B, max_coarse=50)
+    assert len(one.levels) == len(many.levels) > 2
+    np.testing.assert_array_equal(one.levels[0].P.toarray(), many.levels[0].P.toarray())
+    for a, b in zip(one.levels[1:], many.levels[1:]):
+        ref = a.A.toarray()
+        np.testing.assert_allclose(b.A.toarray(), ref, rtol=0, atol=1e-13 * np.abs(ref).max())
+
+
+@pytest.mark.parametrize("name, fix", [("beam", "x<min+0.01"), ("chair", "z<min+0.01")])
+def test_modal_frequencies_are_shift_inverts_of_the_full_matrices(name, fix):
+    """``sc_fem.modal`` with LOBPCG (compact mass, released assembler, split finest matrix) against
+    shift-invert on the matrices assembled the plain way: the same frequencies to 1e-8."""
+    model = sc_fem.voxelize(f"builtin:{name}", resolution=16)
+    got = sc_fem.modal(model, n_modes=4, fix=fix, eigen="lobpcg")
+    asm = Assembler(model, "q1i", fixed_dofs=sc_fem.fixed_dofs(sc_fem.fixed_nodes(model, fix)))
+    ref = solve_eigen(asm.stiffness(), asm.mass(), 4, method="shift-invert", backend="splu")
+    np.testing.assert_allclose(got.frequencies, np.sqrt(ref.eigenvalues) / (2 * np.pi), rtol=1e-8)
