@@ -196,3 +196,79 @@ def test_modal_frequencies_are_shift_inverts_of_the_full_matrices(name, fix):
     asm = Assembler(model, "q1i", fixed_dofs=sc_fem.fixed_dofs(sc_fem.fixed_nodes(model, fix)))
     ref = solve_eigen(asm.stiffness(), asm.mass(), 4, method="shift-invert", backend="splu")
     np.testing.assert_allclose(got.frequencies, np.sqrt(ref.eigenvalues) / (2 * np.pi), rtol=1e-8)
+
+
+@needs_numba
+def test_node_blocks_in_place_are_the_copied_blocks():
+    """``node_blocks(A, overwrite=True)``: the blocks of the copy, their values in ``A``'s own array
+    (reordered); a matrix whose rows do not share node columns is left as it was and copied."""
+    K = Assembler(BOX, "q1i", fixed_dofs=WHOLE).stiffness()
+    ref = bsr.node_blocks(K)
+    A = K.copy()
+    got = bsr.node_blocks(A, overwrite=True)
+    assert np.shares_memory(got.data, A.data)
+    np.testing.assert_array_equal(got.data, ref.data)
+    np.testing.assert_array_equal(got.indices, ref.indices)
+    np.testing.assert_array_equal(got.indptr, ref.indptr)
+    partial = Assembler(BOX, "q1i", fixed_dofs=[0, 4, 5]).stiffness()       # a node fixed in x alone
+    before = partial.copy()
+    got = bsr.node_blocks(partial, overwrite=True)
+    _same(partial, before)
+    np.testing.assert_array_equal(got.toarray(), before.toarray())
+
+
+@needs_numba
+def test_compiled_subset_shift_is_the_numpy_one(monkeypatch):
+    """``K - sigma M`` for ``M``'s entries among ``K``'s: the compiled row merge and numpy's chunked
+    search give the same values, and both refuse (untouched) an ``M`` entry that ``K`` lacks."""
+    from sc_fem.fem import shift
+
+    asm = Assembler(BOX, "q1i", fixed_dofs=WHOLE)
+    K, Mc = asm.stiffness(), asm.mass(compact=True)
+    outside = Mc.tolil()
+    outside[3, K.shape[1] - 1] = 1.0
+    outside = outside.tocsr()
+    got = {}
+    for compiled in (True, False):
+        if not compiled:
+            monkeypatch.setattr(shift, "_subset_rows", None)
+            monkeypatch.setattr(shift, "_ROW_CHUNK", 7)
+        data = K.data.copy()
+        assert shift._subtract_subset(K, Mc, -2.5e3, data)
+        got[compiled] = data
+        again = K.data.copy()
+        assert not shift._subtract_subset(K, outside, -2.5e3, again)
+        np.testing.assert_array_equal(again, K.data)
+    np.testing.assert_array_equal(got[True], got[False])
+
+
+@pytest.mark.parametrize("kernel", [pytest.param("numba", marks=needs_numba), "numpy"])
+def test_a_mass_not_m_times_identity_goes_the_full_way(kernel):
+    """Element matrices whose 3 x 3 blocks are not ``m_ab I``: no node matrix (either kernel), and the
+    compact ``M`` is then the full one without its zeros."""
+    asm = Assembler(BOX, "q1i", fixed_dofs=WHOLE, kernel=kernel)
+    rng = np.random.default_rng(0)
+
+    def coupled(s, e):
+        v = rng.random((e - s, 24, 24))
+        return (v + v.transpose(0, 2, 1)).reshape(e - s, 576)
+
+    assert nodemass.node_values(asm, coupled, _CHUNK, _PAIR_OFFSET) is None
+    assert nodemass.compact_mass(asm, coupled, _CHUNK, _PAIR_OFFSET) is None
+
+
+def test_expand_components_by_numpy_is_the_compiled_one():
+    """The node matrix written out per component: numpy's index arithmetic (any chunk of node rows)
+    and the compiled loop give the same arrays."""
+    asm = Assembler(BOX, "q1i", fixed_dofs=WHOLE)
+    mdata = np.arange(1.0, asm.nnz // 9 + 1)
+    ref = nodemass.expand_components(asm.indptr, asm.indices, mdata, asm.shape, "numba")
+    old = nodemass._ROW_CHUNK
+    try:
+        nodemass._ROW_CHUNK = 5
+        _same(nodemass.expand_components(asm.indptr, asm.indices, mdata, asm.shape, "numpy"), ref)
+    finally:
+        nodemass._ROW_CHUNK = old
+    K = asm.stiffness()
+    assert all(set(ref.indices[ref.indptr[r]:ref.indptr[r + 1]]) <= set(K.indices[K.indptr[r]:K.indptr[r + 1]])
+               for r in range(K.shape[0]))

@@ -17,7 +17,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .._progress import stage_bar
-from .assemble_jit import fill_nodes
+from .assemble_jit import expand_components as compiled_expand, fill_nodes
 
 _ROW_CHUNK = 1 << 13
 """Node rows per chunk while ``M``'s arrays are written (bounded temporaries)."""
@@ -52,13 +52,14 @@ def node_values(asm, values_of_chunk, chunk: int, pair: np.ndarray) -> np.ndarra
     for s in range(0, model.n_cubes, chunk):              # loop over chunks of cubes
         e = min(s + chunk, model.n_cubes)
         vals = np.ascontiguousarray(values_of_chunk(s, e), dtype=np.float64).reshape(e - s, 576)
+        if fill_nodes is not None and asm.kernel == "numba":
+            if not fill_nodes(data, vals, hexes, s, mstart, asm._coloff, free, pair):
+                return None
+            continue
         v = vals.reshape(e - s, 8, 3, 8, 3)
         scalar = v[:, :, 0, :, 0]
         if not np.array_equal(v, scalar[:, :, None, :, None] * _EYE3):
             return None
-        if fill_nodes is not None and asm.kernel == "numba":
-            fill_nodes(data, vals, hexes, s, mstart, asm._coloff, free, pair)
-            continue
         hx = hexes[s:e]
         pos = mstart[hx][:, :, None] + asm._coloff[(27 * hx)[:, :, None] + pair] // 3
         keep = free[hx][:, :, None] & free[hx][:, None, :]
@@ -66,8 +67,8 @@ def node_values(asm, values_of_chunk, chunk: int, pair: np.ndarray) -> np.ndarra
     return data
 
 
-def expand_components(indptr: np.ndarray, indices: np.ndarray, mdata: np.ndarray, shape: tuple[int, int]
-                      ) -> sp.csr_matrix:
+def expand_components(indptr: np.ndarray, indices: np.ndarray, mdata: np.ndarray, shape: tuple[int, int],
+                      kernel: str = "numba") -> sp.csr_matrix:
     """``M = m (x) I3`` on whole free nodes from the node matrix's values and the pattern of ``K``.
 
     Parameters
@@ -75,27 +76,41 @@ def expand_components(indptr: np.ndarray, indices: np.ndarray, mdata: np.ndarray
     indptr, indices : ndarray of int
         ``K``'s CSR pattern (node-major DOFs, whole nodes, 3 columns per node block).
     mdata : ndarray, shape (nnz(K) // 9,)
-        ``m`` per stored node block, in the blocks' order.
+        ``m`` per stored node block, in the blocks' order, kg.
     shape : tuple
         ``(n, n)``, ``n = 3 x`` free nodes.
+    kernel : {"numba", "numpy"}
+        Compiled (on every core, when numba is installed) or numpy's index arithmetic, chunk of node
+        rows by chunk; the same arrays.
 
     Returns
     -------
     scipy.sparse.csr_matrix, shape ``shape``
         Row ``3 r + c`` holds ``m[r, j]`` at column ``3 j + c`` for every block ``j`` of node ``r``'s
-        rows (sorted; stored zeros only where ``m`` has them).
+        rows (sorted; stored zeros only where ``m`` has them), kg.
     """
     n = shape[0]
     bptr = indptr[0::3] // 9                              # node r's blocks: bptr[r] .. bptr[r + 1]
     length = np.diff(bptr)
-    itype = indptr.dtype
-    mptr = np.empty(n + 1, dtype=itype)
+    mptr = np.empty(n + 1, dtype=indptr.dtype)
     mptr[:-1] = (3 * bptr[:-1, None] + np.arange(3) * length[:, None]).ravel()
     mptr[-1] = 3 * bptr[-1]
     data = np.empty(3 * len(mdata))
     idx = np.empty(3 * len(mdata), dtype=indices.dtype)
-    for r0 in range(0, n // 3, _ROW_CHUNK):               # loop over chunks of node rows
-        r1 = min(r0 + _ROW_CHUNK, n // 3)
+    if compiled_expand is not None and kernel == "numba":
+        compiled_expand(bptr, indices, mdata, data, idx)
+    else:
+        _expand_numpy(bptr, indices, mdata, data, idx)
+    M = sp.csr_matrix((data, idx, mptr), shape=shape)
+    M.has_sorted_indices = True
+    return M
+
+
+def _expand_numpy(bptr, indices, mdata, data, idx) -> None:
+    """:func:`sc_fem.fem.assemble_jit._expand_components_py` by index arithmetic, chunk of node rows by chunk."""
+    length = np.diff(bptr)
+    for r0 in range(0, len(length), _ROW_CHUNK):           # loop over chunks of node rows
+        r1 = min(r0 + _ROW_CHUNK, len(length))
         q0, q1 = 3 * int(bptr[r0]), 3 * int(bptr[r1])
         L = np.repeat(length[r0:r1], 3 * length[r0:r1])   # the row's blocks, per entry of M
         u = np.arange(q1 - q0) - np.repeat(3 * (bptr[r0:r1] - bptr[r0]), 3 * length[r0:r1])
@@ -103,9 +118,6 @@ def expand_components(indptr: np.ndarray, indices: np.ndarray, mdata: np.ndarray
         first = np.repeat(bptr[r0:r1], 3 * length[r0:r1])
         data[q0:q1] = mdata[first + t]
         idx[q0:q1] = indices[9 * first + 3 * c * L + 3 * t + c]
-    M = sp.csr_matrix((data, idx, mptr), shape=shape)
-    M.has_sorted_indices = True
-    return M
 
 
 def compact_mass(asm, values_of_chunk, chunk: int, pair: np.ndarray) -> sp.csr_matrix | None:
@@ -135,4 +147,4 @@ def compact_mass(asm, values_of_chunk, chunk: int, pair: np.ndarray) -> sp.csr_m
     with stage_bar("assemble M", asm.model.n_cubes, unit="cube") as bar:
         mdata = node_values(asm, values_of_chunk, chunk, pair)
         bar.update(asm.model.n_cubes)
-    return None if mdata is None else expand_components(asm.indptr, asm.indices, mdata, asm.shape)
+    return None if mdata is None else expand_components(asm.indptr, asm.indices, mdata, asm.shape, asm.kernel)

@@ -18,6 +18,7 @@ import scipy.sparse as sp
 from scipy.linalg.blas import daxpy
 from scipy.sparse.linalg import LinearOperator
 
+from .._jit import compiled_parallel, prange
 from ..errors import SolverError
 from .spmm import BlockProduct
 
@@ -46,13 +47,45 @@ _ROW_CHUNK = 1 << 15
 """Rows per chunk while ``M``'s entries are found in ``K``'s pattern (bounded temporaries)."""
 
 
+def _subset_rows_py(kptr, kidx, mptr, midx, bad):  # pragma: no cover - compiled
+    for r in prange(len(kptr) - 1):          # is every column of M's row r among K's (both sorted)?
+        p, e = kptr[r], kptr[r + 1]
+        for q in range(mptr[r], mptr[r + 1]):
+            while p < e and kidx[p] < midx[q]:
+                p += 1
+            if p == e or kidx[p] != midx[q]:
+                bad[r] = True
+                break
+
+
+def _subtract_rows_py(kptr, kidx, data, mptr, midx, mdata, sigma):  # pragma: no cover - compiled
+    for r in prange(len(kptr) - 1):          # data -= sigma M on K's pattern (M's columns among K's)
+        p = kptr[r]
+        for q in range(mptr[r], mptr[r + 1]):
+            while kidx[p] < midx[q]:
+                p += 1
+            data[p] -= sigma * mdata[q]
+
+
+_subset_rows = compiled_parallel(_subset_rows_py)
+_subtract_rows = compiled_parallel(_subtract_rows_py)
+
+
 def _subtract_subset(K: sp.csr_matrix, M: sp.csr_matrix, sigma: float, data: np.ndarray) -> bool:
     """``data -= sigma M`` on ``K``'s pattern (``data``: values on it, e.g. ``K.data``) when every
     stored entry of ``M`` is one of ``K``'s (both sorted, e.g. a compact mass,
-    :mod:`sc_fem.fem.nodemass`); False, ``data`` untouched, otherwise. Row chunk by row chunk: the
-    positions are found by a search on (row, column) keys of the chunk."""
+    :mod:`sc_fem.fem.nodemass`); False, ``data`` untouched, otherwise. Compiled: a merge of each row's
+    columns (checked first, then subtracted); numpy: row chunk by row chunk, a search on the chunk's
+    (row, column) keys."""
     if not (K.has_sorted_indices and M.has_sorted_indices) or K.shape != M.shape:
         return False
+    if _subset_rows is not None:                         # compiled: a merge of each row, on every core
+        bad = np.zeros(K.shape[0], dtype=np.bool_)
+        _subset_rows(K.indptr, K.indices, M.indptr, M.indices, bad)
+        if bad.any():
+            return False
+        _subtract_rows(K.indptr, K.indices, data, M.indptr, M.indices, M.data, float(sigma))
+        return True
     n, cols = K.shape[0], max(K.shape[1], 1)
     found = []
     for r0 in range(0, n, _ROW_CHUNK):                  # loop over chunks of rows: find every position first
@@ -174,7 +207,10 @@ class ShiftedStiffness(LinearOperator):
         return sp.csr_matrix(self._matrix if sp.issparse(self._matrix) else self._matrix.tocsr())
 
     def _matmat(self, X: np.ndarray) -> np.ndarray:
-        return self._A(X) + self.sigma * self._M(X)
+        Y, MX = self._A(X), self._M(X)            # two blocks of X's size, no third
+        MX *= self.sigma
+        Y += MX
+        return Y
 
     def _matvec(self, x: np.ndarray) -> np.ndarray:
         return self._matmat(np.asarray(x).reshape(-1, 1)).ravel()
