@@ -127,38 +127,46 @@ def test_component_mass_of_the_compact_mass_is_that_of_the_full_one():
 
 @needs_numba
 @pytest.mark.parametrize("parallel", [False, True])
-def test_split_node_blocks_hold_the_matrix_to_48_bits(parallel, monkeypatch):
-    """``SplitNodeBlocks``: ``hi + lo`` within 2^-48 of every entry, ``hi`` the float32 rounding (shared
-    by :meth:`high`), and its compiled product (a vector, a block; serial, parallel) the loop oracle of
-    ``hi + lo`` in float64."""
-    from test_spmm import bsr_loop_oracle
-
+def test_split_node_blocks_are_the_matrix_bit_for_bit(parallel, monkeypatch):
+    """``SplitNodeBlocks``: ``hi`` the float32 rounding (shared by :meth:`high`), ``hi + lo`` every
+    float64 entry exactly (also through numpy's split), and its compiled product (a vector, a block;
+    serial, parallel) the float64 kernel's, bit for bit."""
     monkeypatch.setattr(bsr, "PARALLEL_NNZ", 0 if parallel else 10**12)
     Kb = bsr.node_blocks(Assembler(BOX, "q1i", fixed_dofs=WHOLE).stiffness())
+    Kb.data[0, 0, 1] = 3e-39                                          # a subnormal float32
+    Kb.data[1, 2, 2] = -1e-300                                        # below float32's range: 2^-181
     S = bsr.SplitNodeBlocks(Kb)
     np.testing.assert_array_equal(S.hi, Kb.data.astype(np.float32))
-    exact = S.hi.astype(np.float64) + S.lo
-    assert np.all(np.abs(exact - Kb.data) <= 2.0**-48 * np.abs(Kb.data))
+    rebuilt = S.tobsr().data
+    assert abs(rebuilt[1, 2, 2] - Kb.data[1, 2, 2]) <= 2.0**-181
+    rebuilt[1, 2, 2] = Kb.data[1, 2, 2]
+    np.testing.assert_array_equal(rebuilt, Kb.data)
     assert np.shares_memory(S.high().data, S.hi) and S.high().dtype == np.float32
-    np.testing.assert_array_equal(S.tobsr().data, exact)
     np.testing.assert_array_equal(S.tocsr().toarray(), S.tobsr().toarray())
-    ref64 = sp.bsr_matrix((exact, Kb.indices, Kb.indptr), shape=Kb.shape)
+    monkeypatch.setattr(bsr, "_split_values", None)
+    monkeypatch.setattr(bsr, "SPLIT_CHUNK", 5)
+    by_numpy = bsr.SplitNodeBlocks(Kb)
+    np.testing.assert_array_equal(by_numpy.hi, S.hi)
+    np.testing.assert_array_equal(by_numpy.lo, S.lo)
+    Kb.data[1, 2, 2] = 0.0
+    S = bsr.SplitNodeBlocks(Kb)
     X = np.random.default_rng(3).standard_normal((Kb.shape[0], 4))
-    want = bsr_loop_oracle(ref64, X)
-    prod = bsr.NodeBlockProduct(S, "numba")
+    prod, f64 = bsr.NodeBlockProduct(S, "numba"), bsr.NodeBlockProduct(Kb, "numba")
     assert prod.parallel == parallel
-    tol = 1e-13 * np.abs(want).max()
-    np.testing.assert_allclose(prod(X), want, rtol=0, atol=tol)
-    np.testing.assert_allclose(prod(X[:, 1]), want[:, 1], rtol=0, atol=tol)
-    np.testing.assert_allclose(S @ X, Kb @ X, rtol=0, atol=1e-12 * np.abs(want).max())
+    np.testing.assert_array_equal(prod(X), f64(X))
+    np.testing.assert_array_equal(prod(X[:, 1]), f64(X[:, 1:2]).ravel())
+    np.testing.assert_array_equal(S @ X, f64(X))
     with pytest.raises(ValueError):
         bsr.NodeBlockProduct(S, "numpy")
+    Kb.data[2, 0, 0] = 1e39                                           # beyond float32: not split
+    with pytest.raises(ValueError, match="float32"):
+        bsr.SplitNodeBlocks(Kb)
 
 
 @needs_numba
 def test_float32_v_cycle_keeps_its_finest_matrix_once():
     """``LatticeAMG(dtype=float32)`` compiled: the finest ``A`` split in two, the smoother reading its
-    float32 part (no second copy), the float64 products within 2^-47 of ``A``'s."""
+    float32 part (no second copy), the float64 products those of ``A`` itself, bit for bit."""
     m = CubeModel.box((24, 4, 4), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
     asm = Assembler(m, "q1i", fixed_dofs=np.arange(3 * 25))
     K = asm.stiffness()
@@ -167,7 +175,7 @@ def test_float32_v_cycle_keeps_its_finest_matrix_once():
     assert isinstance(fine.A, bsr.SplitNodeBlocks)
     assert np.shares_memory(fine.smoothing.A.data, fine.A.hi)
     X = np.random.default_rng(1).standard_normal((K.shape[0], 3))
-    np.testing.assert_allclose(fine(X), K @ X, rtol=0, atol=2.0**-46 * (abs(K) @ abs(X)).max())
+    np.testing.assert_array_equal(fine(X), bsr.NodeBlockProduct(bsr.node_blocks(K), "numba")(X))
 
 
 def test_chunked_set_up_builds_the_same_hierarchy(monkeypatch):

@@ -19,9 +19,10 @@ Two paths:
     (``cache_slots``). With numba installed a compiled kernel (:mod:`sc_fem.fem.assemble_jit`)
     adds every chunk's entries into ``data`` computing each position inline (no position array,
     no ``np.add.at``; ``kernel=``). Fixed DOFs are dropped while the pattern is built, so no slicing
-    afterwards. The consistent ``M`` shares ``K``'s ``indptr``/``indices`` (so ``K - sigma M``
-    is a ``data`` operation). Memory is the output's: ``indices`` (4 bytes per nonzero) once
-    and ``data`` (8 bytes per nonzero) per matrix, plus about 50 bytes per node.
+    afterwards. The consistent ``M`` shares ``K``'s ``indptr``/``indices`` (``K - sigma M`` is a
+    ``data`` operation) or keeps its nonzeros alone (``compact=True``, :mod:`sc_fem.fem.nodemass`).
+    Memory is the output's: ``indices`` (4 bytes per nonzero) once, ``data`` (8 bytes per nonzero)
+    per matrix, about 50 bytes per node (:meth:`Assembler.release` drops the pattern).
 ``method="skfem"``
     The reference: scikit-fem ``MeshHex`` + ``ElementVector(ElementHex1())`` with per-element
     Lame parameters from :mod:`skfem.models.elasticity` (2x2x2 Gauss). Supports ``"q1"`` and
@@ -169,9 +170,7 @@ class Assembler:
     def __getattr__(self, name: str):
         """The pattern's arrays, built again after :meth:`release`."""
         if name in _PATTERN and "free_dofs" in self.__dict__:
-            free = np.zeros(3 * self.model.n_nodes, dtype=bool)
-            free[self.free_dofs] = True
-            self._build(free)
+            self._build(np.isin(np.arange(3 * self.model.n_nodes), self.free_dofs))
             return self.__dict__[name]
         raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 

@@ -88,8 +88,8 @@ class _Level:
             ``A``'s float64 products stay (the finest level's, which LOBPCG and CG use), else ``A``
             itself is lowered. A float32 smoother of a kept ``A`` of node blocks reads the float32 part
             of ``A`` split in two (:class:`~sc_fem.fem.bsr.SplitNodeBlocks`, compiled: ``A`` is
-            stored once, its products to 2^-48 of each entry); without numba it has its own float32
-            copy beside the float64 ``A``.
+            stored once, its products the float64 ones bit for bit); without numba (or entries beyond
+            float32's range) it has its own float32 copy beside the float64 ``A``.
         """
         cast = (lambda m: m) if dtype == np.float64 else (
             lambda m: sp.bsr_matrix((m.data.astype(dtype), m.indices, m.indptr), shape=m.shape))
@@ -101,12 +101,19 @@ class _Level:
         if not keep:
             self.A = cast(self.A)
             self.smoothing = self._product = NodeBlockProduct(self.A, self._kernel)
-        elif dtype == np.float32 and self._kernel == "numba" and self.A.blocksize == (3, 3):
-            self.A = SplitNodeBlocks(self.A)          # hi + lo: the float64 blocks are freed
+        elif dtype == np.float32 and self._kernel == "numba" and self.A.blocksize == (3, 3) and self._split():
             self._product = NodeBlockProduct(self.A, self._kernel)
             self.smoothing = NodeBlockProduct(self.A.high(), self._kernel)
         else:
             self.smoothing = self._product if self.A.dtype == dtype else NodeBlockProduct(cast(self.A), self._kernel)
+
+    def _split(self) -> bool:
+        """``A`` as :class:`~sc_fem.fem.bsr.SplitNodeBlocks` (its float64 blocks freed), or False."""
+        try:
+            self.A = SplitNodeBlocks(self.A)
+        except ValueError:                          # beyond float32's range
+            return False
+        return True
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         """``A @ x``, ``x`` of shape (n,) or (n, k)."""
@@ -251,8 +258,11 @@ class LatticeAMG:
     dtype : {numpy.float64, numpy.float32}
         Precision of the V-cycle (its matrices and work vectors; the set-up is in float64, and
         :meth:`vcycle` takes and returns float64). float32 halves the hierarchy's memory and the
-        bytes a sweep reads, the finest ``A`` then kept in both (its float64 products are
-        ``levels[0]``'s); an inexact preconditioner, enough for LOBPCG (see
+        bytes a sweep reads; the finest ``A`` keeps float64 products (``levels[0]``'s), from
+        ``A`` split into a float32 ``hi`` and an int32 ``lo`` when compiled, exactly
+        (:class:`~sc_fem.fem.bsr.SplitNodeBlocks`: stored once, the smoother reading ``hi``), else
+        from ``A`` beside a float32 copy; an
+        inexact preconditioner, enough for LOBPCG (see
         :data:`sc_fem.fem.eigen.VCYCLE_DTYPE`), while CG to 1e-8 keeps float64.
 
     Attributes
