@@ -19,9 +19,10 @@ Two paths:
     (``cache_slots``). With numba installed a compiled kernel (:mod:`sc_fem.fem.assemble_jit`)
     adds every chunk's entries into ``data`` computing each position inline (no position array,
     no ``np.add.at``; ``kernel=``). Fixed DOFs are dropped while the pattern is built, so no slicing
-    afterwards. The consistent ``M`` shares ``K``'s ``indptr``/``indices`` (so ``K - sigma M``
-    is a ``data`` operation). Memory is the output's: ``indices`` (4 bytes per nonzero) once
-    and ``data`` (8 bytes per nonzero) per matrix, plus about 50 bytes per node.
+    afterwards. The consistent ``M`` shares ``K``'s ``indptr``/``indices`` (``K - sigma M`` is a
+    ``data`` operation) or keeps its nonzeros alone (``compact=True``, :mod:`sc_fem.fem.nodemass`).
+    Memory is the output's: ``indices`` (4 bytes per nonzero) once, ``data`` (8 bytes per nonzero)
+    per matrix, about 50 bytes per node (:meth:`Assembler.release` drops the pattern).
 ``method="skfem"``
     The reference: scikit-fem ``MeshHex`` + ``ElementVector(ElementHex1())`` with per-element
     Lame parameters from :mod:`skfem.models.elasticity` (2x2x2 Gauss). Supports ``"q1"`` and
@@ -38,6 +39,8 @@ from .._jit import choose_kernel
 from .._progress import stage_bar
 from .._validate import as_float_array, as_indices
 from .generic import assemble_skfem
+from .nodemass import compact_mass
+from .shift import without_zeros
 from .elements import (DEFAULT_ELEMENT, check_element, cube_mass_chunks, cube_stiffness_chunks,
                        stiffness_chunks)
 from ..errors import InputError
@@ -52,6 +55,9 @@ _AUTO_CACHE_BYTES = 2**28
 
 _NODE_CHUNK = 8192
 """Nodes per chunk while the column indices are written."""
+
+_PATTERN = ("indptr", "indices", "nnz", "_rowstart", "_coloff", "_free3", "_all_free", "_interior", "_dloc")
+"""The attributes :meth:`Assembler._build` sets, which :meth:`Assembler.release` drops."""
 
 # offset id (0..26) of corner b seen from corner a, shape (8, 8)
 _PAIR_OFFSET = np.ascontiguousarray(np.ravel_multi_index(
@@ -152,6 +158,21 @@ class Assembler:
         self._cache_all = bool(cache_slots)          # True: every fill; None: re-fills only
         self._cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray | None]] | None = (
             None if cache_slots is False else {})
+
+    def release(self) -> None:
+        """Drop the pattern, its per-node tables (``indices``: ~320 bytes per DOF of a solid lattice)
+        and cached positions; :meth:`expand`, :meth:`restrict` need none, the next fill rebuilds them."""
+        for name in _PATTERN:
+            self.__dict__.pop(name, None)
+        if self._cache is not None:
+            self._cache = {}
+
+    def __getattr__(self, name: str):
+        """The pattern's arrays, built again after :meth:`release`."""
+        if name in _PATTERN and "free_dofs" in self.__dict__:
+            self._build(np.isin(np.arange(3 * self.model.n_nodes), self.free_dofs))
+            return self.__dict__[name]
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     # ------------------------------------------------------------------ pattern
     def _build(self, free: np.ndarray) -> None:
@@ -320,7 +341,7 @@ class Assembler:
         nu = self.model.poisson if poisson is None else _per_cube(poisson, "poisson", n)
         return self._scatter(stiffness_chunks(self.element, *lame(E, nu), self.model.h))
 
-    def mass(self, *, lumped: bool = False, masses: ArrayLike | None = None) -> sp.csr_matrix:
+    def mass(self, *, lumped: bool = False, masses: ArrayLike | None = None, compact: bool = False) -> sp.csr_matrix:
         """Assemble ``M`` (kg).
 
         Parameters
@@ -332,6 +353,10 @@ class Assembler:
             ``m_e / 8`` in each direction.
         masses : array_like, shape (n,), optional
             Per-cube masses in kg; default ``model.mass`` (the voxelizer's sample mass).
+        compact : bool
+            The consistent ``M`` with its nonzeros alone, on its own pattern (27 per row of a solid
+            lattice instead of 81: half the memory of its values on ``K``'s pattern;
+            :mod:`sc_fem.fem.nodemass`), the same matrix.
 
         Returns
         -------
@@ -343,7 +368,11 @@ class Assembler:
         if lumped:
             nm = self.model.node_masses(mass)
             return sp.diags(np.repeat(nm, 3)[self.free_dofs]).tocsr()
-        return self._scatter(cube_mass_chunks(self.model, mass), matrix="M")   # partial cubes: like their filled region
+        chunks = cube_mass_chunks(self.model, mass)           # partial cubes: like their filled region
+        M = compact_mass(self, chunks, _CHUNK, _PAIR_OFFSET) if compact else None
+        if compact and M is None:                             # nodes partly fixed: the zeros dropped
+            M = without_zeros(self._scatter(chunks, matrix="M"))
+        return self._scatter(chunks, matrix="M") if M is None else M
 
     # ------------------------------------------------------------------ helpers
     def expand(self, u_free: np.ndarray) -> np.ndarray:

@@ -14,7 +14,7 @@ numpy scatter runs.
 
 from __future__ import annotations
 
-from .._jit import available, compiled  # noqa: F401 - available: whether fill can run
+from .._jit import available, compiled, compiled_parallel, prange  # noqa: F401 - available: whether fill can run
 
 
 def _fill_py(data, vals, hexes, s, interior, rowstart, coloff, free3, pair, template):  # pragma: no cover - compiled
@@ -81,9 +81,55 @@ def _add_at_masked_py(data, slot, vals, keep):  # pragma: no cover - compiled
             j += 1
 
 
+def _fill_nodes_py(data, vals, hexes, s, mstart, coloff, free, pair):  # pragma: no cover - compiled
+    """Add the scalar parts ``m_ab`` (entry ``(a, 0, b, 0)`` of each flattened 24 x 24 matrix of
+    ``vals`` (c, 576)) of cubes ``s : s + c`` into the node matrix ``data``, in place (the compact
+    mass, :mod:`sc_fem.fem.nodemass`); node ``i``'s row starts at ``mstart[i]``, its block ``o`` at
+    ``coloff[27 i + o] // 3``; fixed nodes (``free`` False) are skipped. Returns False, before adding
+    anything, when a cube's 3 x 3 block is not ``m_ab I``."""
+    for t in range(vals.shape[0]):
+        for a in range(8):
+            for b in range(8):
+                m = vals[t, 72 * a + 3 * b]
+                for c in range(3):
+                    for d in range(3):
+                        if vals[t, 72 * a + 24 * c + 3 * b + d] != (m if c == d else 0.0):
+                            return False
+    for t in range(vals.shape[0]):
+        cube = s + t
+        for a in range(8):
+            na = hexes[cube, a]
+            if not free[na]:
+                continue
+            r = mstart[na]
+            for b in range(8):
+                nb = hexes[cube, b]
+                if free[nb]:
+                    data[r + coloff[27 * na + pair[a, b]] // 3] += vals[t, 72 * a + 3 * b]
+    return True
+
+
+def _expand_components_py(bptr, indices, mdata, data, idx):  # pragma: no cover - compiled
+    """``M = m (x) I3`` written from the node matrix's values ``mdata`` (one per block of ``K``'s
+    pattern, node rows ``bptr``) and ``K``'s column ``indices``: row ``3 r + c`` holds ``m[r, j]`` at
+    column ``3 j + c`` (see :func:`sc_fem.fem.nodemass.expand_components`)."""
+    for r in prange(len(bptr) - 1):
+        L = bptr[r + 1] - bptr[r]
+        for c in range(3):
+            q = 3 * bptr[r] + c * L
+            k = 9 * bptr[r] + 3 * c * L + c
+            for t in range(L):
+                data[q + t] = mdata[bptr[r] + t]
+                idx[q + t] = indices[k + 3 * t]
+
+
 fill = compiled(_fill_py)
 """The compiled :func:`_fill_py` (None without numba)."""
 add_at = compiled(_add_at_py)
 """The compiled :func:`_add_at_py` (None without numba)."""
 add_at_masked = compiled(_add_at_masked_py)
 """The compiled :func:`_add_at_masked_py` (None without numba)."""
+fill_nodes = compiled(_fill_nodes_py)
+"""The compiled :func:`_fill_nodes_py` (None without numba)."""
+expand_components = compiled_parallel(_expand_components_py)
+"""The compiled :func:`_expand_components_py` (None without numba)."""

@@ -17,6 +17,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .._jit import choose_kernel, compiled, compiled_parallel, prange
+from .nodeblocks import node_blocks  # noqa: F401 - the conversion, importable from here
 
 PARALLEL_NNZ = 4_000_000
 """From this many nonzeros a product runs on every core; below, on one. A parallel product waits
@@ -142,6 +143,29 @@ def _bsr_t_block_py(indptr, indices, data, X, Ys):  # pragma: no cover - compile
         _bsr_t_rows(indptr, indices, data, X, Ys[t], t * n // parts, (t + 1) * n // parts)
 
 
+def _bsr3_split_rows_py(indptr, indices, hi, hbits, lo, scale, X, Y, lo_row, hi_row):  # pragma: no cover - compiled
+    k = X.shape[1]
+    for i in range(lo_row, hi_row):             # Y = A X in float64 on the node rows, X (n, k), A = hi + lo
+        r = 3 * i
+        for a in range(3):
+            for c in range(k):
+                Y[r + a, c] = 0.0
+        for p in range(indptr[i], indptr[i + 1]):
+            j = 3 * indices[p]
+            for a in range(3):               # each entry rebuilt exactly: hi + lo 2^-31 ulp(hi)
+                d0 = np.float64(hi[p, a, 0]) + lo[p, a, 0] * scale[(hbits[p, a, 0] >> 23) & 255]
+                d1 = np.float64(hi[p, a, 1]) + lo[p, a, 1] * scale[(hbits[p, a, 1] >> 23) & 255]
+                d2 = np.float64(hi[p, a, 2]) + lo[p, a, 2] * scale[(hbits[p, a, 2] >> 23) & 255]
+                for c in range(k):
+                    Y[r + a, c] += d0 * X[j, c] + d1 * X[j + 1, c] + d2 * X[j + 2, c]
+
+
+def _bsr3_split_py(indptr, indices, hi, hbits, lo, scale, X, Y):  # pragma: no cover - compiled
+    n = len(indptr) - 1
+    for c in prange(CHUNKS):
+        _bsr3_split_rows(indptr, indices, hi, hbits, lo, scale, X, Y, c * n // CHUNKS, (c + 1) * n // CHUNKS)
+
+
 # separate functions, not one compiled twice: numba's disk cache keys a function by name and line, and a
 # serial and a parallel build of one function overwrote each other
 _bsr3_rows = compiled(_bsr3_rows_py)
@@ -154,51 +178,110 @@ _bsr_rows = compiled(_bsr_rows_py)
 _bsr_block = compiled_parallel(_bsr_block_py)
 _bsr_t_rows = compiled(_bsr_t_rows_py)
 _bsr_t_block = compiled_parallel(_bsr_t_block_py)
+_bsr3_split_rows = compiled(_bsr3_split_rows_py)
+_bsr3_split = compiled_parallel(_bsr3_split_py)
+
+
+def _split_values_py(data, hi, hbits, lo, scale):  # pragma: no cover - compiled
+    for i in prange(len(data)):              # hi: data rounded to float32; lo: the rest in 2^-31 ulp(hi)
+        h = np.float32(data[i])
+        hi[i] = h
+        lo[i] = np.int32(round((data[i] - np.float64(h)) / scale[(hbits[i] >> 23) & 255]))
+
+
+_split_values = compiled_parallel(_split_values_py)
 
 T_PARTS = 4
 """Row parts of a parallel transposed product, each adding into its own copy of the (short) result."""
 
 
-def _node_blocks_py(ptr, indices, data, bptr, bidx, bdata, bad):  # pragma: no cover - compiled
-    for i in prange(len(bptr) - 1):          # node rows split over the cores
-        for j in range(bptr[i + 1] - bptr[i]):
-            c = indices[ptr[3 * i] + 3 * j]
-            bidx[bptr[i] + j] = c // 3
-            for a in range(3):
-                s = ptr[3 * i + a] + 3 * j
-                for b in range(3):
-                    bdata[bptr[i] + j, a, b] = data[s + b]
-                    if indices[s + b] != c - c % 3 + b:
-                        bad[i] = True
+SPLIT_CHUNK = 1 << 20
+"""Blocks per chunk while :class:`SplitNodeBlocks` splits a matrix without numba (bounded temporaries)."""
+
+LO_SCALE = np.ldexp(1.0, np.maximum(np.arange(256), 1) - 181)
+"""Unit of :class:`SplitNodeBlocks`' ``lo`` by the float32 exponent field ``E`` of ``hi``: ``2^-31`` of
+``hi``'s last place, ``2^(E - 150 - 31)`` (subnormal ``hi``: ``E = 1``)."""
 
 
-_node_blocks = compiled_parallel(_node_blocks_py)
+class SplitNodeBlocks:
+    """A float64 matrix of 3 x 3 node blocks stored in two 4-byte parts, exactly: ``hi``, ``A`` rounded
+    to float32 (the float32 V-cycle's smoother reads it alone, :meth:`high`), and ``lo``, the rounding
+    error as an int32 count of ``2^-31`` of ``hi``'s last place (:data:`LO_SCALE`). The error is at
+    most half a last place and a multiple of ``A``'s own last place, so ``lo`` holds it exactly and
+    ``hi + lo * LO_SCALE[E]`` is ``A``'s entry bit for bit (for ``|A| >= 2^-126``; smaller entries to
+    ``2^-181``). Both take the bytes of one float64 copy: a float32 V-cycle keeps its finest matrix
+    once instead of in float64 and float32 both (:meth:`sc_fem.fem.multigrid._Level.lower`), and its
+    products (:class:`NodeBlockProduct`, compiled) are the float64 ones, bit for bit.
 
+    Parameters
+    ----------
+    A : scipy.sparse.bsr_matrix, shape (n, n)
+        Float64, 3 x 3 blocks, entries below float32's overflow; its index arrays are shared.
 
-def node_blocks(A: sp.spmatrix) -> sp.bsr_matrix:
-    """``A`` (n, n) as a BSR matrix of 3 x 3 node blocks.
+    Attributes
+    ----------
+    hi : ndarray of float32, shape (nnzb, 3, 3)
+        ``A`` rounded, in ``A``'s units.
+    lo : ndarray of int32, shape (nnzb, 3, 3)
+        The rest, in units of ``LO_SCALE[E]`` (``E`` the exponent field of ``hi``).
+    indptr, indices : ndarray of int
+        ``A``'s block pattern.
+    shape : tuple
+        ``(n, n)``.
 
-    The lattice's CSR matrices (node-major interleaved DOFs, nodes fixed whole, sorted indices)
-    have the same columns in the 3 rows of a node; with numba the blocks are copied straight out
-    of them on every core (0.05 s instead of scipy's 0.6 s at 195,759 DOFs). Any other matrix, or
-    no numba, goes through scipy.
+    Raises
+    ------
+    ValueError
+        An entry is not finite or beyond float32's range.
     """
-    A = sp.csr_matrix(A, dtype=np.float64)
-    n = A.shape[0]
-    if _node_blocks is None or n % 3 or not A.has_sorted_indices:
-        return sp.bsr_matrix(A, blocksize=(3, 3))
-    cnt = np.diff(A.indptr)
-    per = cnt[0::3]
-    if np.any(per % 3) or np.any(cnt[1::3] != per) or np.any(cnt[2::3] != per):
-        return sp.bsr_matrix(A, blocksize=(3, 3))
-    bptr = np.concatenate([[0], np.cumsum(per // 3)]).astype(A.indptr.dtype)
-    bidx = np.empty(bptr[-1], dtype=A.indices.dtype)
-    bdata = np.empty((bptr[-1], 3, 3))
-    bad = np.zeros(n // 3, dtype=np.bool_)
-    _node_blocks(A.indptr, A.indices, A.data, bptr, bidx, bdata, bad)
-    if bad.any():                                # a node's rows do not share whole node columns
-        return sp.bsr_matrix(A, blocksize=(3, 3))
-    return sp.bsr_matrix((bdata, bidx, bptr), shape=A.shape)
+
+    dtype = np.dtype(np.float64)
+    blocksize = (3, 3)
+    format = "split"
+
+    def __init__(self, A: sp.bsr_matrix) -> None:
+        data = A.data
+        self.indptr, self.indices, self.shape = A.indptr, A.indices, A.shape
+        self.hi, self.lo = np.empty(data.shape, np.float32), np.empty(data.shape, np.int32)
+        if _split_values is not None and data.flags.c_contiguous:      # one pass on every core
+            _split_values(data.reshape(-1), self.hi.reshape(-1), self.hi.view(np.int32).reshape(-1),
+                          self.lo.reshape(-1), LO_SCALE)
+        else:
+            with np.errstate(over="ignore", invalid="ignore"):     # an overflow is refused below
+                for s in range(0, len(data), SPLIT_CHUNK):  # loop over chunks of blocks: bounded temporaries
+                    e = s + SPLIT_CHUNK
+                    self.hi[s:e] = data[s:e]
+                    self.lo[s:e] = np.rint((data[s:e] - self.hi[s:e]) / self._unit(s, e))
+        if len(data) and not (np.isfinite(self.hi.max()) and np.isfinite(self.hi.min())):
+            raise ValueError("a matrix entry is not finite or beyond float32's range: not split")
+
+    def _unit(self, s: int, e: int) -> np.ndarray:
+        """``lo``'s unit for blocks ``s:e`` (float64, their shape)."""
+        return LO_SCALE[(self.hi[s:e].view(np.int32) >> 23) & 255]
+
+    @property
+    def nnz(self) -> int:
+        """Stored entries (9 per block)."""
+        return self.hi.size
+
+    def high(self) -> sp.bsr_matrix:
+        """``hi`` as a float32 BSR matrix (the arrays shared, no copy)."""
+        return sp.bsr_matrix((self.hi, self.indices, self.indptr), shape=self.shape)
+
+    def tobsr(self) -> sp.bsr_matrix:
+        """``A`` as a new float64 BSR matrix."""
+        data = self.hi.astype(np.float64)
+        for s in range(0, len(data), SPLIT_CHUNK):        # loop over chunks of blocks
+            e = s + SPLIT_CHUNK
+            data[s:e] += self.lo[s:e] * self._unit(s, e)
+        return sp.bsr_matrix((data, self.indices.copy(), self.indptr.copy()), shape=self.shape)
+
+    def tocsr(self) -> sp.csr_matrix:
+        """``A`` as a new float64 CSR matrix."""
+        return self.tobsr().tocsr()
+
+    def __matmul__(self, x: np.ndarray) -> np.ndarray:
+        return NodeBlockProduct(self, "numba")(x)
 
 
 class NodeBlockProduct:
@@ -220,11 +303,14 @@ class NodeBlockProduct:
 
     def __init__(self, A: sp.bsr_matrix, kernel: str, transpose: bool = False) -> None:
         self.fast = choose_kernel(kernel) == "numba"
+        self.split = isinstance(A, SplitNodeBlocks)
+        if self.split and (transpose or not self.fast):
+            raise ValueError("a SplitNodeBlocks product is compiled and not transposed")
         self.transpose = bool(transpose) and self.fast
         self.A = sp.bsr_matrix(A.T) if transpose and not self.fast else A
         self.dtype = A.dtype
         self.shape = A.shape[::-1] if transpose else A.shape
-        self.node = A.blocksize == (3, 3) and A.shape[0] == A.shape[1] and not self.transpose
+        self.node = A.blocksize == (3, 3) and A.shape[0] == A.shape[1] and not self.transpose and not self.split
         self.parallel = A.nnz >= PARALLEL_NNZ
 
     def _parallel(self, x: np.ndarray) -> bool:
@@ -239,6 +325,15 @@ class NodeBlockProduct:
         x = np.ascontiguousarray(x, dtype=self.dtype)
         n = len(A.indptr) - 1
         parallel = self._parallel(x)
+        if self.split:                         # A X in float64 from hi and lo, a vector as a one-column block
+            y = np.empty((A.shape[0],) + x.shape[1:])
+            X, Y = x.reshape(x.shape[0], -1), y.reshape(y.shape[0], -1)
+            args = (A.indptr, A.indices, A.hi, A.hi.view(np.int32), A.lo, LO_SCALE, X, Y)
+            if parallel:
+                _bsr3_split(*args)
+            else:
+                _bsr3_split_rows(*args, 0, n)
+            return y
         if self.transpose:                     # Y = A^T X: each part of the rows adds into its own Y
             X = x.reshape(x.shape[0], -1)
             Ys = np.zeros((T_PARTS if parallel else 1, self.shape[0], X.shape[1]), dtype=self.dtype)

@@ -17,7 +17,7 @@ from scipy.sparse.linalg import LinearOperator
 from .._jit import blas_single_threaded, choose_kernel
 from ..errors import InputError
 from ..lattice.cubes import CubeModel
-from .bsr import NodeBlockProduct, block_diagonal_product, node_blocks
+from .bsr import NodeBlockProduct, SplitNodeBlocks, block_diagonal_product, node_blocks
 
 def _coarse_solver(a: np.ndarray):
     """``b -> A^-1 b`` for the dense coarsest matrix of the hierarchy: a Cholesky factor when
@@ -59,7 +59,7 @@ class _Level:
         self.bs = A.blocksize[0]
         self._product = NodeBlockProduct(A, kernel)
         nb = A.shape[0] // self.bs
-        rows = np.repeat(np.arange(nb), np.diff(A.indptr))
+        rows = np.repeat(np.arange(nb, dtype=np.int32), np.diff(A.indptr))
         D = np.zeros((nb, self.bs, self.bs))
         diag = A.indices == rows
         D[rows[diag]] = A.data[diag]
@@ -85,20 +85,35 @@ class _Level:
             estimate's) is dropped, and no ``R`` is kept: the restriction is the product with
             ``P.T`` from ``P``'s blocks (:class:`~sc_fem.fem.bsr.NodeBlockProduct`).
         keep : bool
-            ``A`` and its float64 products stay (the finest level's, which LOBPCG and CG use; a
-            float32 smoother then has its own copy, half the size), else ``A`` itself is lowered.
+            ``A``'s float64 products stay (the finest level's, which LOBPCG and CG use), else ``A``
+            itself is lowered. A float32 smoother of a kept ``A`` of node blocks reads the float32 part
+            of ``A`` split in two (:class:`~sc_fem.fem.bsr.SplitNodeBlocks`, compiled: ``A`` is
+            stored once, its products the float64 ones bit for bit); without numba (or entries beyond
+            float32's range) it has its own float32 copy beside the float64 ``A``.
         """
         cast = (lambda m: m) if dtype == np.float64 else (
             lambda m: sp.bsr_matrix((m.data.astype(dtype), m.indices, m.indptr), shape=m.shape))
-        if not keep:
-            self.A = cast(self.A)
-            self._product = NodeBlockProduct(self.A, self._kernel)
-        self.smoothing = self._product if self.A.dtype == dtype else NodeBlockProduct(cast(self.A), self._kernel)
         self.Dinv, self._Dhalf = self.Dinv.astype(dtype), None      # D^-1/2 served the Lanczos estimate only
-        if self.P is not None:                # R = P^T from P's own blocks when compiled (R not kept)
-            self.P = cast(self.P)
+        if self.P is not None:                # first (its float64 copy freed before A's is split)
+            self.P = cast(self.P)             # R = P^T from P's own blocks when compiled (R not kept)
             self._prolong = NodeBlockProduct(self.P, self._kernel)
             self._restrict = NodeBlockProduct(self.P, self._kernel, transpose=True)
+        if not keep:
+            self.A = cast(self.A)
+            self.smoothing = self._product = NodeBlockProduct(self.A, self._kernel)
+        elif dtype == np.float32 and self._kernel == "numba" and self.A.blocksize == (3, 3) and self._split():
+            self._product = NodeBlockProduct(self.A, self._kernel)
+            self.smoothing = NodeBlockProduct(self.A.high(), self._kernel)
+        else:
+            self.smoothing = self._product if self.A.dtype == dtype else NodeBlockProduct(cast(self.A), self._kernel)
+
+    def _split(self) -> bool:
+        """``A`` as :class:`~sc_fem.fem.bsr.SplitNodeBlocks` (its float64 blocks freed), or False."""
+        try:
+            self.A = SplitNodeBlocks(self.A)
+        except ValueError:                          # beyond float32's range
+            return False
+        return True
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         """``A @ x``, ``x`` of shape (n,) or (n, k)."""
@@ -130,6 +145,65 @@ class _Level:
             rho = rho_new
             x += d
         return x
+
+
+SETUP_CHUNKS = 16
+"""The prolongator and the coarse matrix are formed in this many chunks of block rows (of at least
+:data:`SETUP_ROWS`): ``A P``, ``P^T`` and the smoothing's work are never held for every row at once
+(at 3.1M DOFs they took ~0.8 KB per DOF together)."""
+
+SETUP_ROWS = 1 << 14
+"""Fewest block rows of a set-up chunk (a small level is one chunk)."""
+
+
+def _row_chunks(nb: int):
+    """``(r0, r1)`` block-row ranges of the set-up's chunks (:data:`SETUP_CHUNKS`)."""
+    step = max(SETUP_ROWS, -(-nb // SETUP_CHUNKS))
+    return [(r0, min(r0 + step, nb)) for r0 in range(0, nb, step)]
+
+
+def _rows(A: sp.bsr_matrix, r0: int, r1: int) -> sp.bsr_matrix:
+    """Block rows ``r0:r1`` of ``A`` (views of its arrays)."""
+    p0, p1 = A.indptr[r0], A.indptr[r1]
+    return sp.bsr_matrix((A.data[p0:p1], A.indices[p0:p1], A.indptr[r0:r1 + 1] - p0),
+                         shape=((r1 - r0) * A.blocksize[0], A.shape[1]))
+
+
+def _smoothed_prolongator(A: sp.bsr_matrix, T: sp.bsr_matrix, wDinv: np.ndarray) -> sp.bsr_matrix:
+    """``P = T - w D^-1 A T`` (``wDinv`` (nb, bs, bs): the weighted inverse diagonal blocks), chunk of
+    block rows by chunk (every row as the whole product gives it) into arrays sized once."""
+    parts = []
+    for r0, r1 in _row_chunks(A.shape[0] // A.blocksize[0]):     # loop over chunks of block rows
+        AT = sp.bsr_matrix(_rows(A, r0, r1) @ T, blocksize=T.blocksize)
+        rows = r0 + np.repeat(np.arange(r1 - r0, dtype=np.int32), np.diff(AT.indptr))
+        U = np.einsum("pij,pjk->pik", wDinv[rows], AT.data)
+        parts.append(sp.bsr_matrix(_rows(T, r0, r1) - sp.bsr_matrix((U, AT.indices, AT.indptr), shape=AT.shape),
+                                   blocksize=T.blocksize))
+        del AT, rows, U
+    nnzb = sum(len(q.indices) for q in parts)
+    itype = np.int32 if nnzb < 2**31 else np.int64
+    indptr, indices = np.zeros(A.shape[0] // A.blocksize[0] + 1, dtype=itype), np.empty(nnzb, dtype=itype)
+    data = np.empty((nnzb,) + T.blocksize)
+    r, p = 0, 0
+    while parts:                                       # each chunk copied in, then freed
+        q = parts.pop(0)
+        k, nr = len(q.indices), len(q.indptr) - 1
+        indptr[r + 1:r + nr + 1] = p + q.indptr[1:]
+        indices[p:p + k], data[p:p + k] = q.indices, q.data
+        r, p = r + nr, p + k
+    return sp.bsr_matrix((data, indices, indptr), shape=T.shape)
+
+
+def _galerkin(A: sp.bsr_matrix, P: sp.bsr_matrix) -> sp.bsr_matrix:
+    """The coarse matrix ``P^T A P`` (sorted, ``P``'s column blocks square), summed over chunks of
+    ``A``'s block rows: ``P_c^T (A_c P)``."""
+    bs = (P.blocksize[1],) * 2
+    Ac = None
+    for r0, r1 in _row_chunks(A.shape[0] // A.blocksize[0]):     # loop over chunks of block rows
+        part = sp.bsr_matrix(sp.bsr_matrix(_rows(P, r0, r1).T) @ (_rows(A, r0, r1) @ P), blocksize=bs)
+        Ac = part if Ac is None else sp.bsr_matrix(Ac + part, blocksize=bs)
+    Ac.sort_indices()
+    return Ac
 
 
 def _lanczos_max(mv, n: int, seed: int, steps: int = LANCZOS_STEPS) -> float:
@@ -184,8 +258,11 @@ class LatticeAMG:
     dtype : {numpy.float64, numpy.float32}
         Precision of the V-cycle (its matrices and work vectors; the set-up is in float64, and
         :meth:`vcycle` takes and returns float64). float32 halves the hierarchy's memory and the
-        bytes a sweep reads, the finest ``A`` then kept in both (its float64 products are
-        ``levels[0]``'s); an inexact preconditioner, enough for LOBPCG (see
+        bytes a sweep reads; the finest ``A`` keeps float64 products (``levels[0]``'s), from
+        ``A`` split into a float32 ``hi`` and an int32 ``lo`` when compiled, exactly
+        (:class:`~sc_fem.fem.bsr.SplitNodeBlocks`: stored once, the smoother reading ``hi``), else
+        from ``A`` beside a float32 copy; an
+        inexact preconditioner, enough for LOBPCG (see
         :data:`sc_fem.fem.eigen.VCYCLE_DTYPE`), while CG to 1e-8 keeps float64.
 
     Attributes
@@ -236,14 +313,10 @@ class LatticeAMG:
             if AggOp.shape[1] * B.shape[1] >= Ab.shape[0]:
                 break                                   # aggregation no longer coarsens
             T, B = fit_candidates(AggOp.tocsr(), B)
-            AT = sp.bsr_matrix(Ab @ T, blocksize=T.blocksize)
-            rows = np.repeat(np.arange(AT.shape[0] // lvl.bs), np.diff(AT.indptr))
-            U = np.einsum("pij,pjk->pik", ((PROLONGATION_OMEGA / lvl.rho) * lvl.Dinv)[rows], AT.data)
-            P = sp.bsr_matrix(T - sp.bsr_matrix((U, AT.indices, AT.indptr), shape=AT.shape),
-                              blocksize=T.blocksize)
-            lvl.P = P
-            Ab = sp.bsr_matrix(sp.bsr_matrix(P.T) @ (Ab @ P), blocksize=(P.blocksize[1],) * 2)
-            Ab.sort_indices()
+            del AggOp
+            lvl.P = _smoothed_prolongator(Ab, T, (PROLONGATION_OMEGA / lvl.rho) * lvl.Dinv)
+            del T
+            Ab = _galerkin(Ab, lvl.P)
         c = self.levels[-1].A.toarray()
         self._coarse = _coarse_solver(0.5 * (c + c.T))
         for i, lvl in enumerate(self.levels):

@@ -18,6 +18,7 @@ import scipy.sparse as sp
 from scipy.linalg.blas import daxpy
 from scipy.sparse.linalg import LinearOperator
 
+from .._jit import compiled_parallel, prange
 from ..errors import SolverError
 from .spmm import BlockProduct
 
@@ -42,6 +43,67 @@ def _same_pattern(K: sp.csr_matrix, M: sp.csr_matrix) -> bool:
             and (K.indices is M.indices or np.array_equal(K.indices, M.indices)))
 
 
+_ROW_CHUNK = 1 << 15
+"""Rows per chunk while ``M``'s entries are found in ``K``'s pattern (bounded temporaries)."""
+
+
+def _subset_rows_py(kptr, kidx, mptr, midx, bad):  # pragma: no cover - compiled
+    for r in prange(len(kptr) - 1):          # is every column of M's row r among K's (both sorted)?
+        p, e = kptr[r], kptr[r + 1]
+        for q in range(mptr[r], mptr[r + 1]):
+            while p < e and kidx[p] < midx[q]:
+                p += 1
+            if p == e or kidx[p] != midx[q]:
+                bad[r] = True
+                break
+
+
+def _subtract_rows_py(kptr, kidx, data, mptr, midx, mdata, sigma):  # pragma: no cover - compiled
+    for r in prange(len(kptr) - 1):          # data -= sigma M on K's pattern (M's columns among K's)
+        p = kptr[r]
+        for q in range(mptr[r], mptr[r + 1]):
+            while kidx[p] < midx[q]:
+                p += 1
+            data[p] -= sigma * mdata[q]
+
+
+_subset_rows = compiled_parallel(_subset_rows_py)
+_subtract_rows = compiled_parallel(_subtract_rows_py)
+
+
+def _subtract_subset(K: sp.csr_matrix, M: sp.csr_matrix, sigma: float, data: np.ndarray) -> bool:
+    """``data -= sigma M`` on ``K``'s pattern (``data``: values on it, e.g. ``K.data``) when every
+    stored entry of ``M`` is one of ``K``'s (both sorted, e.g. a compact mass,
+    :mod:`sc_fem.fem.nodemass`); False, ``data`` untouched, otherwise. Compiled: a merge of each row's
+    columns (checked first, then subtracted); numpy: row chunk by row chunk, a search on the chunk's
+    (row, column) keys."""
+    if not (K.has_sorted_indices and M.has_sorted_indices) or K.shape != M.shape:
+        return False
+    if _subset_rows is not None:                         # compiled: a merge of each row, on every core
+        bad = np.zeros(K.shape[0], dtype=np.bool_)
+        _subset_rows(K.indptr, K.indices, M.indptr, M.indices, bad)
+        if bad.any():
+            return False
+        _subtract_rows(K.indptr, K.indices, data, M.indptr, M.indices, M.data, float(sigma))
+        return True
+    n, cols = K.shape[0], max(K.shape[1], 1)
+    found = []
+    for r0 in range(0, n, _ROW_CHUNK):                  # loop over chunks of rows: find every position first
+        r1 = min(r0 + _ROW_CHUNK, n)
+        k0, k1, m0, m1 = K.indptr[r0], K.indptr[r1], M.indptr[r0], M.indptr[r1]
+        kkey = np.repeat(np.arange(r1 - r0, dtype=np.int64) * cols, np.diff(K.indptr[r0:r1 + 1])) + K.indices[k0:k1]
+        mkey = np.repeat(np.arange(r1 - r0, dtype=np.int64) * cols, np.diff(M.indptr[r0:r1 + 1])) + M.indices[m0:m1]
+        pos = np.searchsorted(kkey, mkey)
+        if np.any(pos >= len(kkey)) or not np.array_equal(kkey[np.minimum(pos, len(kkey) - 1)], mkey):
+            return False
+        found.append(pos.astype(np.int32 if k1 - k0 < 2**31 else np.int64))
+    for r0, pos in zip(range(0, n, _ROW_CHUNK), found):   # then subtract (nothing changed on a failure)
+        r1 = min(r0 + _ROW_CHUNK, n)
+        seg = data[K.indptr[r0]:K.indptr[r1]]
+        seg[pos] -= sigma * M.data[M.indptr[r0]:M.indptr[r1]]
+    return True
+
+
 def shifted(K: sp.spmatrix, M: sp.spmatrix, sigma: float) -> sp.csr_matrix:
     """``K - sigma M`` as CSR; when both share one sparsity pattern (the assembler's consistent
     ``M`` shares ``K``'s), one operation on the values instead of a sparse merge (4.7 s at
@@ -60,14 +122,18 @@ def shifted(K: sp.spmatrix, M: sp.spmatrix, sigma: float) -> sp.csr_matrix:
         A new matrix (sharing ``K``'s index arrays when the patterns are one).
     """
     K, M = sp.csr_matrix(K), sp.csr_matrix(M)
-    if not _same_pattern(K, M):
-        return (K - sigma * M).tocsr()
-    return sp.csr_matrix((K.data - sigma * M.data, K.indices, K.indptr), shape=K.shape)
+    if _same_pattern(K, M):
+        return sp.csr_matrix((K.data - sigma * M.data, K.indices, K.indptr), shape=K.shape)
+    data = np.array(K.data, dtype=np.float64)
+    if _subtract_subset(K, M, sigma, data):                    # M's entries among K's: K's pattern
+        return sp.csr_matrix((data, K.indices, K.indptr), shape=K.shape)
+    return (K - sigma * M).tocsr()
 
 
 def shift_in_place(K: sp.csr_matrix, M: sp.csr_matrix, sigma: float) -> sp.csr_matrix:
     """:func:`shifted`, written over ``K``'s values when ``K`` is a float64 CSR matrix with ``M``'s
-    pattern (no second matrix of ``K``'s size); otherwise a new matrix, ``K`` untouched.
+    pattern or one that holds it (a compact mass, :mod:`sc_fem.fem.nodemass`; no second matrix of
+    ``K``'s size); otherwise a new matrix, ``K`` untouched.
 
     Parameters
     ----------
@@ -83,15 +149,17 @@ def shift_in_place(K: sp.csr_matrix, M: sp.csr_matrix, sigma: float) -> sp.csr_m
     scipy.sparse.csr_matrix
         ``K - sigma M`` (``K`` itself when written in place).
     """
-    if not (sp.isspmatrix_csr(K) and sp.isspmatrix_csr(M) and K.dtype == np.float64 and M.dtype == np.float64
-            and _same_pattern(K, M)):
+    if not (sp.isspmatrix_csr(K) and sp.isspmatrix_csr(M) and K.dtype == np.float64 and M.dtype == np.float64):
         return shifted(K, M, sigma)
-    daxpy(M.data, K.data, a=-sigma)          # in place: no temporary of the values' size
-    return K
+    if _same_pattern(K, M):
+        daxpy(M.data, K.data, a=-sigma)      # in place: no temporary of the values' size
+        return K
+    return K if _subtract_subset(K, M, sigma, K.data) else shifted(K, M, sigma)
 
 
 def without_zeros(M: sp.csr_matrix) -> sp.csr_matrix:
-    """A copy of ``M`` without its stored zeros (temporaries: 5 bytes per stored entry, not a copy of ``M``).
+    """A copy of ``M`` without its stored zeros (temporaries: 5 bytes per stored entry, not a copy of
+    ``M``), or ``M`` itself (as CSR) when it stores none.
 
     Parameters
     ----------
@@ -103,6 +171,8 @@ def without_zeros(M: sp.csr_matrix) -> sp.csr_matrix:
         The same matrix; a third of the entries for a consistent lattice mass on ``K``'s pattern.
     """
     M = sp.csr_matrix(M)
+    if M.data.all():
+        return M
     keep = M.data != 0
     upto = np.cumsum(keep, dtype=np.int32 if M.nnz < 2**31 else np.int64)   # entries kept up to each
     indptr = np.where(M.indptr > 0, upto[np.maximum(M.indptr - 1, 0)] if M.nnz else 0, 0)
@@ -119,8 +189,9 @@ class ShiftedStiffness(LinearOperator):
         :class:`~sc_fem.fem.bsr.NodeBlockProduct`, :class:`~sc_fem.fem.spmm.BlockProduct`).
     sigma : float
         The shift, 1/s^2.
-    matrix : scipy.sparse matrix, shape (n, n)
-        ``A`` itself (CSR or node-block BSR), kept for :meth:`shifted_matrix`.
+    matrix : scipy.sparse matrix or SplitNodeBlocks, shape (n, n)
+        ``A`` itself (CSR, node-block BSR or :class:`~sc_fem.fem.bsr.SplitNodeBlocks`), kept for
+        :meth:`shifted_matrix`.
 
     Attributes
     ----------
@@ -133,10 +204,13 @@ class ShiftedStiffness(LinearOperator):
 
     def shifted_matrix(self) -> sp.csr_matrix:
         """``A = K - sigma M`` as CSR (the matrix itself when it is CSR)."""
-        return sp.csr_matrix(self._matrix)
+        return sp.csr_matrix(self._matrix if sp.issparse(self._matrix) else self._matrix.tocsr())
 
     def _matmat(self, X: np.ndarray) -> np.ndarray:
-        return self._A(X) + self.sigma * self._M(X)
+        Y, MX = self._A(X), self._M(X)            # two blocks of X's size, no third
+        MX *= self.sigma
+        Y += MX
+        return Y
 
     def _matvec(self, x: np.ndarray) -> np.ndarray:
         return self._matmat(np.asarray(x).reshape(-1, 1)).ravel()
@@ -169,22 +243,31 @@ class ComponentMass:
     def of(cls, M: sp.spmatrix) -> ComponentMass | None:
         """The :class:`ComponentMass` equal to ``M`` (compared entry by entry), or None when ``M`` is not
         ``m (x) I_3`` on node-major DOFs."""
-        M = without_zeros(M) if (M := sp.csr_matrix(M)).nnz and not M.data.all() else M
+        M = without_zeros(M)
         M.sort_indices()
         n = M.shape[0]
         cnt = np.diff(M.indptr)
         if n % 3 or not (np.array_equal(cnt[0::3], cnt[1::3]) and np.array_equal(cnt[0::3], cnt[2::3])):
             return None
-        if np.any(M.indices % 3 != np.repeat((np.arange(n) % 3).astype(np.int8), cnt)):
-            return None
         c0 = cnt[0::3]
-        p0 = np.repeat(M.indptr[0:-1:3], c0) + (np.arange(int(c0.sum())) - np.repeat(np.cumsum(c0) - c0, c0))
-        for a in (1, 2):                         # the component's rows are row 3i's, shifted by a
-            pa = p0 + np.repeat(M.indptr[a:-1:3] - M.indptr[0:-1:3], c0)
-            if not (np.array_equal(M.indices[pa], M.indices[p0] + a) and np.array_equal(M.data[pa], M.data[p0])):
+        indptr = np.zeros(n // 3 + 1, dtype=M.indptr.dtype)
+        np.cumsum(c0, out=indptr[1:])
+        data, indices = np.empty(int(indptr[-1])), np.empty(int(indptr[-1]), dtype=M.indices.dtype)
+        for r0 in range(0, n // 3, _ROW_CHUNK):            # loop over chunks of node rows (bounded temporaries)
+            r1 = min(r0 + _ROW_CHUNK, n // 3)
+            c = c0[r0:r1]
+            within = np.arange(int(indptr[r1] - indptr[r0])) - np.repeat(indptr[r0:r1] - indptr[r0], c)
+            p0 = np.repeat(M.indptr[3 * r0:3 * r1:3], c) + within             # row 3i's entries
+            col = M.indices[p0]
+            if np.any(col % 3):
                 return None
-        indptr = np.concatenate([[0], np.cumsum(c0)]).astype(M.indptr.dtype)
-        return cls(sp.csr_matrix((M.data[p0], M.indices[p0] // 3, indptr), shape=(n // 3, n // 3)))
+            for a in (1, 2):                     # the component's rows are row 3i's, shifted by a
+                pa = np.repeat(M.indptr[3 * r0 + a:3 * r1 + a:3], c) + within
+                if not (np.array_equal(M.indices[pa], col + a) and np.array_equal(M.data[pa], M.data[p0])):
+                    return None
+            data[indptr[r0]:indptr[r1]] = M.data[p0]
+            indices[indptr[r0]:indptr[r1]] = col // 3
+        return cls(sp.csr_matrix((data, indices, indptr), shape=(n // 3, n // 3)))
 
     def __call__(self, X: np.ndarray) -> np.ndarray:
         """``M @ X`` for ``X`` of shape (n,) or (n, k)."""

@@ -81,7 +81,11 @@ def solve_scene(scene, req: ModalRequest) -> Solved:
         asm = Assembler(model, element, fixed_dofs=scene.fixed_dofs)
         nodes_m = model.nodes_m
     K = asm.stiffness()
-    M = asm.mass(lumped=req.lumped)
+    if isinstance(asm, Assembler):            # M's nonzeros alone; the pattern is K's now, freed with K's CSR
+        M = asm.mass(lumped=req.lumped, compact=True)
+        asm.release()
+    else:
+        M = asm.mass(lumped=req.lumped)
     t["assemble"] = time.perf_counter() - t0
     n = K.shape[0]
     if n == 0:
