@@ -13,10 +13,13 @@ Two methods, both returning the smallest eigenvalues:
     static solves) and passed to ``eigsh`` as ``OPinv`` (a ``LinearOperator``), so scipy never
     factorizes anything itself.
 ``"lobpcg"``
-    :func:`scipy.sparse.linalg.lobpcg` preconditioned by a V-cycle of the smoothed-aggregation
-    multigrid of ``K - sigma M`` (:class:`sc_fem.fem.multigrid.LatticeAMG`, on the whole block of
-    vectors at once) whose near-null space is the 6 rigid-body modes of the free DOFs
-    (:mod:`sc_fem.fem.rigid`). Needs only ``O(nnz(K))`` memory: the method for models whose
+    The block LOBPCG of :mod:`sc_fem.fem.lobpcg` (soft locking, an orthonormalized basis, the
+    implicit ``P`` update, five blocks of vectors updated in place) on ``K - sigma M``,
+    preconditioned by a V-cycle of the smoothed-aggregation multigrid of ``K - sigma M``
+    (:class:`sc_fem.fem.multigrid.LatticeAMG`, on the block of active residuals at once) whose
+    near-null space is the 6 rigid-body modes of the free DOFs (:mod:`sc_fem.fem.rigid`). It stops
+    when the ``k`` wanted pairs converge, at ``maxiter``, or when their residuals stop falling fast
+    enough (``"stalled"``, ``"slow"``). Needs only ``O(nnz(K))`` memory: the method for models whose
     factorization would not fit.
 
 ``method="auto"`` (:func:`~sc_fem.fem.options.choose_method`) predicts both solvers' times from
@@ -300,8 +303,7 @@ class EigenSolver:
         tol_abs = self.lobpcg_tol * abs(self.sigma) * float(np.sqrt(np.mean(self.M.diagonal())))
         with blas_single_threaded(), stage_bar("eigensolve (LOBPCG)") as bar:   # counts the V-cycles
             _, V, info = lobpcg(Ap, Mp, X, k, tol_abs, T=counting(bar, self._op, tol_abs, (k, m)),
-                                maxiter=self.maxiter, seed=self.seed)
-        del X
+                                maxiter=self.maxiter, seed=self.seed, copy=False)   # X: the block's buffer
         return V, {key: info[key] for key in ("iterations", "stop", "restarts", "residual_over_tol")}
 
     def solve(self, k: int) -> EigenResult:

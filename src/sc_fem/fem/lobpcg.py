@@ -133,12 +133,12 @@ def _ritz(GA: np.ndarray, GB: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return theta, C
 
 
-def _start(A: Product, B: Product, X0: np.ndarray, seed: int
+def _start(A: Product, B: Product, X0: np.ndarray, seed: int, copy: bool
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The first block: ``X0`` ``B``-orthonormalized (dependent columns replaced by random ones)
     and rotated to its Ritz vectors; returns ``theta, X, AX, BX``."""
     n, m = X0.shape
-    X = np.array(X0, dtype=np.float64, order="C")
+    X = (np.array if copy else np.asarray)(X0, dtype=np.float64, order="C")
     buf = X.reshape(-1)
     rng = np.random.default_rng(seed)
     for _ in range(4):
@@ -164,8 +164,8 @@ def _start(A: Product, B: Product, X0: np.ndarray, seed: int
 
 
 def lobpcg(A, B, X0: np.ndarray, k: int, tol: float, *, T=None, maxiter: int = 400,
-           checks: tuple[int, int] = CHECKS, seed: int = 0,
-           soft_locking: bool = True) -> tuple[np.ndarray, np.ndarray, dict]:
+           checks: tuple[int, int] = CHECKS, seed: int = 0, soft_locking: bool = True,
+           copy: bool = True) -> tuple[np.ndarray, np.ndarray, dict]:
     """The ``k`` smallest eigenpairs of ``A x = lambda B x`` by block LOBPCG (module docstring).
 
     Parameters
@@ -175,7 +175,7 @@ def lobpcg(A, B, X0: np.ndarray, k: int, tol: float, *, T=None, maxiter: int = 4
         matrices, operators); both symmetric, ``B`` positive definite, and ``A`` positive definite
         for a preconditioner to make sense (e.g. ``K - sigma M``).
     X0 : ndarray, shape (n, m)
-        The start block, ``k <= m < n`` (copied; dependent columns are replaced by random ones).
+        The start block, ``k <= m < n`` (dependent columns are replaced by random ones).
     k : int
         Wanted pairs: the ``k`` lowest of the block's ``m``. The others only speed convergence.
     tol : float
@@ -190,6 +190,8 @@ def lobpcg(A, B, X0: np.ndarray, k: int, tol: float, *, T=None, maxiter: int = 4
         Seed of random columns replacing dependent ones.
     soft_locking : bool
         Converged columns get no new direction (default); False: every column does (for tests).
+    copy : bool
+        False: a C-ordered float64 ``X0`` becomes the block's buffer (overwritten; one block less).
 
     Returns
     -------
@@ -208,7 +210,7 @@ def lobpcg(A, B, X0: np.ndarray, k: int, tol: float, *, T=None, maxiter: int = 4
     n, m = X0.shape
     if not 1 <= k <= m < n:
         raise ValueError(f"need 1 <= k <= m < n, got k={k}, m={m}, n={n}")
-    theta, X, AX, BX = _start(A, B, X0, seed)
+    theta, X, AX, BX = _start(A, B, X0, seed, copy)
     wbuf, pbuf, apbuf = np.empty(n * m), np.empty(n * m), np.empty(n * m)
     p, PAP, fresh = 0, np.zeros((0, 0)), True
     hist: list[np.ndarray] = []
@@ -244,32 +246,33 @@ def lobpcg(A, B, X0: np.ndarray, k: int, tol: float, *, T=None, maxiter: int = 4
         act = np.flatnonzero(rn > tol) if soft_locking else np.arange(m)
         W = _compact(wbuf, n, m, act)
         W[...] = T(W)
-        # B-orthogonal to [X, P], then B-orthonormal (SVQB)
+        # B-orthogonal to [X, P], then B-orthonormal (SVQB): W's B-Gram rows known from before it
         P, AP = _view(pbuf, n, p), _view(apbuf, n, p)
-        before, BW = None, np.ascontiguousarray(B(W), dtype=np.float64)
-        for sweep in range(2):
-            norms = np.einsum("ij,ij->j", W, BW)
-            before = norms if before is None else before
-            cx, cp = X.T @ BW, P.T @ BW
+        BW = np.ascontiguousarray(B(W), dtype=np.float64)
+        for sweep in range(3):
+            cx, cp, G = X.T @ BW, P.T @ BW, W.T @ BW
+            if not sweep:
+                before = norms = np.diag(G).copy()     # the squared B-norms before
+            else:                                  # orthogonal enough, or the second pass done
+                left = np.diag(G) / np.maximum(norms, 1e-300)
+                if sweep == 2 or not np.any((left < REORTHOGONALIZE) & (np.diag(G) > NOISE * before)):
+                    break
+                norms = np.diag(G).copy()
             del BW
             _subtract(W, [(X, cx), (P, cp)] if p else [(X, cx)])
             BW = np.ascontiguousarray(B(W), dtype=np.float64)
-            left = np.einsum("ij,ij->j", W, BW) / np.maximum(norms, 1e-300)
-            if sweep or not np.any((left < REORTHOGONALIZE) & (left * norms > NOISE * before)):
-                break
-        Q = _svqb(W.T @ BW, before)
+        del BW
+        Q = _svqb(G, before)
         a = Q.shape[1]
         if a == 0:
             stop = "stalled"
             break
         W = _transform(wbuf, n, W.shape[1], Q)
-        BW = _transform(BW.reshape(-1), n, BW.shape[1], Q)
         # Rayleigh--Ritz on [X, P, W]: the X and P blocks known, the W rows computed
         s = m + p + a
         GA, GB = np.zeros((s, s)), np.eye(s)
         GA[:m, :m], GA[m:m + p, m:m + p] = np.diag(theta), PAP
-        GB[:m, m + p:], GB[m:m + p, m + p:], GB[m + p:, m + p:] = X.T @ BW, P.T @ BW, W.T @ BW
-        del BW
+        GB[:m, m + p:], GB[m:m + p, m + p:], GB[m + p:, m + p:] = cx @ Q, cp @ Q, Q.T @ G @ Q
         AW = np.ascontiguousarray(A(W), dtype=np.float64)
         GA[:m, m + p:], GA[m:m + p, m + p:], GA[m + p:, m + p:] = X.T @ AW, P.T @ AW, W.T @ AW
         GA, GB = np.triu(GA) + np.triu(GA, 1).T, np.triu(GB) + np.triu(GB, 1).T
