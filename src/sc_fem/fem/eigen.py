@@ -13,10 +13,13 @@ Two methods, both returning the smallest eigenvalues:
     static solves) and passed to ``eigsh`` as ``OPinv`` (a ``LinearOperator``), so scipy never
     factorizes anything itself.
 ``"lobpcg"``
-    :func:`scipy.sparse.linalg.lobpcg` preconditioned by a V-cycle of the smoothed-aggregation
-    multigrid of ``K - sigma M`` (:class:`sc_fem.fem.multigrid.LatticeAMG`, on the whole block of
-    vectors at once) whose near-null space is the 6 rigid-body modes of the free DOFs
-    (:mod:`sc_fem.fem.rigid`). Needs only ``O(nnz(K))`` memory: the method for models whose
+    The block LOBPCG of :mod:`sc_fem.fem.lobpcg` (soft locking, an orthonormalized basis, the
+    implicit ``P`` update, five blocks of vectors updated in place) on ``K - sigma M``,
+    preconditioned by a V-cycle of the smoothed-aggregation multigrid of ``K - sigma M``
+    (:class:`sc_fem.fem.multigrid.LatticeAMG`, on the block of active residuals at once) whose
+    near-null space is the 6 rigid-body modes of the free DOFs (:mod:`sc_fem.fem.rigid`). It stops
+    when the ``k`` wanted pairs converge, at ``maxiter``, or when their residuals stop falling fast
+    enough (``"stalled"``, ``"slow"``). Needs only ``O(nnz(K))`` memory: the method for models whose
     factorization would not fit.
 
 ``method="auto"`` (:func:`~sc_fem.fem.options.choose_method`) predicts both solvers' times from
@@ -37,12 +40,10 @@ asking again for more eigenpairs costs no second setup; :func:`solve_eigen` is t
 from __future__ import annotations
 
 import time
-import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as sla
 from scipy.sparse.linalg import LinearOperator, eigsh
 
 from .._jit import blas_single_threaded
@@ -52,6 +53,7 @@ from .._validate import positive_int
 from ..errors import InputError, SolverError
 from .bsr import node_blocks
 from .linsolve import factorize
+from .lobpcg import lobpcg
 from .multigrid import LatticeAMG
 # rayleigh_ritz, relative_residuals, SHIFT_FRACTION, lambda_scale and shifted are re-exported: the eigensolver's names stay importable from here
 from .ritz import rayleigh_ritz, relative_residuals  # noqa: F401
@@ -112,13 +114,6 @@ one-cube-thick cables so poorly (PCG needs 300-500 iterations) that LOBPCG stall
 residuals ~0.98 with frequencies 15 % off, and ``modal`` returned them. The solver then falls back
 to shift-invert (``method="auto"`` when the factorization fits the budget) or raises
 :class:`SolverError` (``method="lobpcg"``)."""
-
-LOBPCG_ROUNDS = (20, 8)
-"""LOBPCG iterations of the first round and of every later one, between checks of the wanted
-eigenpairs' residuals (see ``EigenSolver._lobpcg``): small models converge within the first
-round (rounds of 12 took 29 iterations instead of 23 on a 3,000-DOF bar); on the 158,976-DOF
-cantilever rounds of 20 stopped at 46 iterations, 20 then 8 at 34 (each restart costs a few)."""
-
 
 VCYCLE_DTYPE = np.float32
 """Precision of LOBPCG's preconditioner, the AMG V-cycle (:class:`~sc_fem.fem.multigrid.LatticeAMG`
@@ -303,51 +298,13 @@ class EigenSolver:
         if (B := self.near_null) is not None:      # start in the rigid space: those modes converge at once
             X[:, :min(B.shape[1], m)] = B[:, :min(B.shape[1], m)]
         Ap, Mp = self._products
-        A_op = LinearOperator(Ap.A.shape, matvec=Ap, matmat=Ap, dtype=np.float64)
-        with warnings.catch_warnings(), blas_single_threaded(), stage_bar("eigensolve (LOBPCG)") as bar:
-            warnings.simplefilter("ignore")        # lobpcg warns when it stops at maxiter; we report residuals
-            # lobpcg's tol is absolute on ||A x - mu M x|| (x M-normalized): scale it by the shift, the
-            # smallest eigenvalue scale we know, times the typical ||M x|| ~ sqrt(mean diag M)
-            tol_abs = self.lobpcg_tol * abs(self.sigma) * float(np.sqrt(np.mean(self.M.diagonal())))
-            # scipy's LOBPCG stops only when every vector of the block has converged, the extra
-            # ones too, which converge last (on the 24,336-DOF cantilever the 6 wanted modes
-            # converged at iteration 19 and the block at 53); so it runs in rounds of
-            # LOBPCG_ROUNDS iterations, each restarted from the last, until the k wanted pass
-            # A round that LOBPCG ends early on its own (its Gram matrices too ill-conditioned to
-            # go on) is restarted from where it got to: a fresh, orthonormal block often goes on
-            # (a 3,600-DOF plate stalled in 5 of 60 random starts, at relative residuals down to
-            # 0.003, and converged after one to three restarts). A stalled round is judged as any
-            # other, by the rule below, and ends the solve when it made too little progress:
-            # restarting then gains nothing (at 931,896 DOFs every later round ran 2-3 iterations
-            # and left the residuals where they were, the frequencies already converged to 1e-10);
-            # the residuals reached are reported.
-            # A round whose residual reduction, kept up, would not reach the tolerance within
-            # maxiter ends the solve too ("slow"): on the bridge at resolution 128 the second round
-            # cut the residual by 1 % (the cantilevers' rounds cut it 3x or more).
-            its, rounds, stalls, stop, prev = 0, 0, 0, "converged", None
-            while True:
-                asked = min(LOBPCG_ROUNDS[rounds > 0], self.maxiter - its)
-                lam, V, hist = sla.lobpcg(A_op, X, B=Mp.operator(), M=counting(bar, self._op, tol_abs, (k, m)),
-                                      tol=tol_abs, maxiter=asked, largest=False, retResidualNormsHistory=True)
-                its, rounds = its + len(hist), rounds + 1
-                stalled = len(hist) < asked            # it ended the round before maxiter on its own
-                stalls += stalled
-                lam, V = np.sort(lam), V[:, np.argsort(lam)]
-                R = Ap(V[:, :k]) - Mp(V[:, :k]) * lam[None, :k]
-                worst = float(np.linalg.norm(R, axis=0).max()) / tol_abs
-                _LOG.info(f"    LOBPCG round {rounds}: {its} iterations, largest residual {worst:.3g} x the tolerance")
-                if worst <= 1.0:
-                    break
-                if its >= self.maxiter:
-                    stop = "maxiter"
-                elif prev is not None and (prev <= worst or its + LOBPCG_ROUNDS[1] * np.log(worst)
-                                           / np.log(prev / worst) > self.maxiter):
-                    stop = "stalled" if stalled else "slow"
-                if stop != "converged":
-                    break
-                X, prev = V, worst
-        return V, {"iterations": its, "rounds": rounds, "stop": stop, "stalled_rounds": stalls,
-                   "residual_over_tol": worst}
+        # the tolerance is absolute on ||A x - mu M x|| (x M-normalized): the shift, the smallest
+        # eigenvalue scale we know, times the typical ||M x|| ~ sqrt(mean diag M)
+        tol_abs = self.lobpcg_tol * abs(self.sigma) * float(np.sqrt(np.mean(self.M.diagonal())))
+        with blas_single_threaded(), stage_bar("eigensolve (LOBPCG)") as bar:   # counts the V-cycles
+            _, V, info = lobpcg(Ap, Mp, X, k, tol_abs, T=counting(bar, self._op, tol_abs, (k, m)),
+                                maxiter=self.maxiter, seed=self.seed, copy=False)   # X: the block's buffer
+        return V, {key: info[key] for key in ("iterations", "stop", "restarts", "residual_over_tol")}
 
     def solve(self, k: int) -> EigenResult:
         """The ``k`` smallest eigenpairs (``1 <= k < n``), refined by Rayleigh--Ritz, with residuals.
