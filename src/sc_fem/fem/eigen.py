@@ -242,7 +242,9 @@ class EigenSolver:
                 del Mz
             if self.overwrite:                       # K's products from the blocks
                 self.K = None
-            A = node_blocks(A) if bs == 3 else A     # node blocks now: the CSR copy is freed before the set-up
+            # node blocks now, the CSR's values reordered into them in place (A is the solver's own:
+            # K - sigma M written over K, or a new matrix): no second copy of the values, 648 B/DOF
+            A = node_blocks(A, overwrite=True) if bs == 3 else A
             try:
                 amg = LatticeAMG(A, self.near_null, aggregates=self.aggregates, blocksize=bs, seed=self.seed,
                                  dtype=VCYCLE_DTYPE)
