@@ -225,26 +225,27 @@ def test_the_power_law_scales_lobpcg_by_k_and_the_fill_model_by_its_block():
 
 
 # LOBPCG + AMG on the shapes of ``python benchmarks/auto_choice.py --quick`` that LOBPCG_FILL_MODEL was
-# fitted to (two runs of 2 repeats, 2026-11-28, benchmarks/out/auto_choice_fitdata*.json):
+# fitted to (one run of 2 repeats of our LOBPCG, 2026-11-28, benchmarks/out/auto_choice_fitdata3.json):
 # (shape, free DOFs, nnz(L), pairs, iterations taken, median seconds taken)
 LOBPCG_FIT_TABLE = [
-    ("beam", 5292, 797823, 16, 22, 0.42),
-    ("bunny", 31161, 15725535, 16, 23, 2.62),
-    ("spot", 23283, 9714411, 16, 23, 1.96),
-    ("armchair", 24921, 6688251, 16, 45, 3.55),
-    ("chair", 7803, 975825, 16, 45, 0.92),
-    ("plate", 75465, 18919017, 16, 45, 10.03),
-    ("I-beam", 30186, 5442939, 16, 69, 6.15),
-    ("truss (mm)", 10992, 1031640, 16, 139, 3.60),
-    ("toy truck", 76035, 35660139, 16, 45, 14.68),
-    ("cantilever", 139656, 119457186, 6, 23, 7.56),
+    ("beam", 5292, 797823, 16, 17, 0.34),
+    ("bunny", 31161, 15725535, 16, 21, 1.56),
+    ("spot", 23283, 9714411, 16, 20, 1.13),
+    ("armchair", 24921, 6688251, 16, 36, 2.36),
+    ("chair", 7803, 975825, 16, 31, 0.70),
+    ("plate", 75465, 18919017, 16, 35, 7.83),
+    ("I-beam", 30186, 5442939, 16, 46, 2.91),
+    ("truss (mm)", 10992, 1031640, 16, 94, 2.21),
+    ("toy truck", 76035, 35660139, 16, 36, 5.11),
+    ("cantilever", 139656, 119457186, 6, 13, 4.08),
 ]
 
 
 def test_the_lobpcg_model_reproduces_the_runs_it_was_fitted_to():
-    """Iterations within the fit's stated rms (0.30 in log, each within 1.8x; compact solids, q >= q0,
-    exactly the compact count), and the seconds of the fitted table without a bias (geometric mean of
-    taken / predicted within 15 %) and each within 1.8x (the iterations' error and the load's)."""
+    """Iterations within the fit's stated rms (0.31 in log, each within 1.85x: the beam's 17 against
+    31; compact solids, q >= q0, exactly the compact count), and the seconds of the fitted table
+    without a bias (geometric mean of taken / predicted within 15 %) and each within 1.5x, the
+    issue's target (0.75-1.31x when fitted)."""
     its, secs = [], []
     for _, n, nnz_l, k, taken_its, taken_s in LOBPCG_FIT_TABLE:
         a = fill.FillAnalysis(n=n, nnz_l=nnz_l, flops=0.0, seconds=0.0)
@@ -253,8 +254,8 @@ def test_the_lobpcg_model_reproduces_the_runs_it_was_fitted_to():
         if nnz_l / n ** (4 / 3) >= fill.LOBPCG_FILL_MODEL["q0"]:
             assert fill.lobpcg_iterations(a) == fill.LOBPCG_FILL_MODEL["iterations"]
     its, secs = np.array(its), np.array(secs)
-    assert np.sqrt(np.mean(its ** 2)) <= 0.31 and np.abs(its).max() <= np.log(1.8), its
-    assert abs(np.mean(secs)) <= np.log(1.15) and np.abs(secs).max() <= np.log(1.8), np.exp(secs)
+    assert np.sqrt(np.mean(its ** 2)) <= 0.32 and np.abs(its).max() <= np.log(1.85), its
+    assert abs(np.mean(secs)) <= np.log(1.15) and np.abs(secs).max() <= np.log(1.5), np.exp(secs)
 
 
 @needs_fill

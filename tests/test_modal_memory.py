@@ -4,6 +4,8 @@ the frequencies of ``sc_fem.modal`` through all of them."""
 
 from __future__ import annotations
 
+import tracemalloc
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -12,7 +14,8 @@ import sc_fem
 from sc_fem import _jit
 from sc_fem.fem import bsr, multigrid, nodemass
 from sc_fem.fem.assemble import _CHUNK, _PAIR_OFFSET, Assembler
-from sc_fem.fem.eigen import solve_eigen
+from sc_fem.fem.eigen import EigenSolver, solve_eigen
+from sc_fem.fem.options import lobpcg_memory_estimate
 from sc_fem.fem.rigid import rigid_body_modes
 from sc_fem.fem.shift import ComponentMass, shift_in_place, shifted, without_zeros
 from sc_fem.lattice.cubes import CubeModel
@@ -280,3 +283,25 @@ def test_expand_components_by_numpy_is_the_compiled_one():
     K = asm.stiffness()
     assert all(set(ref.indices[ref.indptr[r]:ref.indptr[r + 1]]) <= set(K.indices[K.indptr[r]:K.indptr[r + 1]])
                for r in range(K.shape[0]))
+
+
+@pytest.mark.parametrize("shape", [(40, 10, 10), (60, 15, 15)])
+def test_lobpcgs_memory_estimate_covers_what_the_solve_allocates(shape):
+    """``auto`` refuses LOBPCG when its estimate exceeds the budget: the estimate must cover what the
+    eigensolve allocates (tracemalloc's peak; K and M handed over as modal does) without being
+    several times too large (a million cubes was refused at 11.7 GB where 4.5 GiB were needed)."""
+    model = CubeModel.box(shape, 0.1, youngs=2e11, poisson=0.3, density=7850.0)
+    asm = Assembler(model, "q1i", fixed_dofs=sc_fem.fixed_dofs(sc_fem.fixed_nodes(model, "x<min+1e-9")))
+    K, M = asm.stiffness(), asm.mass()
+    n, nnz = K.shape[0], K.nnz
+    solver = EigenSolver(K, M, method="lobpcg", near_null=rigid_body_modes(model.nodes_m, asm.free_dofs),
+                         overwrite=True)
+    del K, M
+    tracemalloc.start()
+    try:
+        solver.solve(6)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    estimate = lobpcg_memory_estimate(n, nnz, 6)
+    assert peak <= estimate <= 1.6 * peak, (peak / n, estimate / n)

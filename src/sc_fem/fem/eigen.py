@@ -143,6 +143,10 @@ class EigenSolver:
         Shift in 1/s^2; must be negative. Default ``-SHIFT_FRACTION * lambda_scale(K, M)``.
     near_null : ndarray, shape (n, 6), optional
         Rigid-body modes for the AMG near-null space (LOBPCG); default: the translations.
+    start : ndarray, shape (n, s), optional
+        Vectors LOBPCG's block starts from (the first ``min(s, block)`` columns, the rest random),
+        e.g. the rigid-body modes of every loose part (:func:`sc_fem.fem.rigid.part_rigid_modes`);
+        default ``near_null``.
     aggregates : ndarray of int, shape (n // 3,), optional
         The AMG's finest aggregates, one per DOF node (LOBPCG; e.g.
         :func:`sc_fem.fem.multigrid.lattice_aggregates`); default: pyamg's standard aggregation.
@@ -178,7 +182,7 @@ class EigenSolver:
     """
 
     def __init__(self, K: sp.spmatrix, M: sp.spmatrix, *, method: str = "auto", backend: str = "auto",
-                 sigma: float | None = None, near_null: np.ndarray | None = None,
+                 sigma: float | None = None, near_null: np.ndarray | None = None, start: np.ndarray | None = None,
                  aggregates: np.ndarray | None = None, tol: float = 0.0, lobpcg_tol: float = 1e-3,
                  maxiter: int = 400, max_memory: float | None = None, seed: int = 0, lattice: bool = True,
                  overwrite: bool = False) -> None:
@@ -197,6 +201,7 @@ class EigenSolver:
         self.method, self.backend, self.reason = method, backend, ""
         self._auto, self._requested_backend = False, backend
         self.near_null, self.aggregates = near_null, aggregates
+        self.start = near_null if start is None else start
         self.tol, self.lobpcg_tol, self.maxiter, self.max_memory, self.seed = tol, lobpcg_tol, maxiter, max_memory, seed
         self.n_setups, self._setup_seconds, self._info, self.lattice = 0, 0.0, {}, bool(lattice)
         self._op = None                       # OPinv (shift-invert) or the V-cycle (LOBPCG)
@@ -297,7 +302,7 @@ class EigenSolver:
     def _lobpcg(self, k: int) -> tuple[np.ndarray, dict]:
         m = min(self.n - 1, lobpcg_block(k))      # a few extra vectors speed convergence
         X = np.random.default_rng(self.seed).standard_normal((self.n, m))
-        if (B := self.near_null) is not None:      # start in the rigid space: those modes converge at once
+        if (B := self.start) is not None:          # start in the rigid space: those modes converge at once
             X[:, :min(B.shape[1], m)] = B[:, :min(B.shape[1], m)]
         Ap, Mp = self._products
         # the tolerance is absolute on ||A x - mu M x|| (x M-normalized): the shift, the smallest

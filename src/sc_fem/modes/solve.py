@@ -20,7 +20,8 @@ from ..fem.assemble import Assembler
 from ..fem.eigen import EigenSolver
 from ..fem.choice import choose_element
 from ..fem.highorder import DEGREES, HighOrderAssembler, HighOrderCubes
-from ..fem.rigid import rigid_body_modes
+from ..fem.fill import lobpcg_block
+from ..fem.rigid import part_rigid_modes, rigid_body_modes
 from ..fem.multigrid import lattice_aggregates
 from ..fem.static import held_parts, node_parts
 from ..lattice.cubes import CubeModel
@@ -38,11 +39,12 @@ about ``1e-17 .. 1e-16 * lambda_scale`` (round-off); the first elastic (bending)
 the threshold (measured with ``solve_eigen`` on ``CubeModel.box((200, 1, 1), ...)``)."""
 
 
-def _unsupported_parts(model: CubeModel, labels: np.ndarray, fixed: np.ndarray) -> int:
+def _unsupported_parts(model: CubeModel, labels: np.ndarray, fixed: np.ndarray) -> np.ndarray:
     """Connected parts (node ``labels``) whose fixed nodes leave some rigid motion free (each may
-    have up to 6)."""
+    have up to 6), largest first."""
     n_parts = int(labels.max()) + 1
-    return int(n_parts - held_parts(model, labels, fixed, n_parts).sum())
+    loose = np.flatnonzero(~held_parts(model, labels, fixed, n_parts))
+    return loose[np.argsort(-np.bincount(labels, minlength=n_parts)[loose], kind="stable")]
 
 
 @dataclass(frozen=True, eq=False)
@@ -91,15 +93,20 @@ def solve_scene(scene, req: ModalRequest) -> Solved:
     if n == 0:
         raise InputError("every node is fixed: no modes to compute")
     labels = node_parts(model)
-    n_rigid_expected = 6 * _unsupported_parts(model, labels, fixed)
+    loose = _unsupported_parts(model, labels, fixed)
+    n_rigid_expected = 6 * len(loose)
     want = DEFAULT_N_MODES if (n_modes is None and max_frequency is None) else n_modes
     lam_max = None if max_frequency is None else (2.0 * np.pi * max_frequency) ** 2
     k_cap = min(n - 1, max_modes + n_rigid_expected + 6)
     k = n_rigid_expected + (want if want is not None else 12)
     t0 = time.perf_counter()
     aggregates = None if element in DEGREES else lattice_aggregates(model, labels, asm.free_dofs)
+    near_null = rigid_body_modes(nodes_m, asm.free_dofs)
+    # several loose parts: LOBPCG starts from each one's rigid motions (as many parts as its block holds)
+    start = (part_rigid_modes(nodes_m, labels, loose[:lobpcg_block(min(k, k_cap)) // 6], asm.free_dofs)
+             if len(loose) > 1 else None)
     solver = EigenSolver(K, M, method=req.eigen.solver, backend=req.eigen.backend, aggregates=aggregates,
-                         near_null=rigid_body_modes(nodes_m, asm.free_dofs), max_memory=req.eigen.max_memory,
+                         near_null=near_null, start=start, max_memory=req.eigen.max_memory,
                          lattice=element not in DEGREES, overwrite=True)
     del K, M                                                      # the solver's now: it frees what it need not keep
     scale = solver.lambda_scale
