@@ -102,9 +102,10 @@ def solve_scene(scene, req: ModalRequest) -> Solved:
     t0 = time.perf_counter()
     aggregates = None if element in DEGREES else lattice_aggregates(model, labels, asm.free_dofs)
     near_null = rigid_body_modes(nodes_m, asm.free_dofs)
-    # several loose parts: LOBPCG starts from each one's rigid motions (as many parts as its block holds)
+    # several loose parts of a lattice: LOBPCG starts from each one's rigid motions (as many parts as
+    # its block holds; higher-order cubes have nodes of their own, which the part labels do not cover)
     start = (part_rigid_modes(nodes_m, labels, loose[:lobpcg_block(min(k, k_cap)) // 6], asm.free_dofs)
-             if len(loose) > 1 else None)
+             if len(loose) > 1 and element not in DEGREES else None)
     solver = EigenSolver(K, M, method=req.eigen.solver, backend=req.eigen.backend, aggregates=aggregates,
                          near_null=near_null, start=start, max_memory=req.eigen.max_memory,
                          lattice=element not in DEGREES, overwrite=True)
