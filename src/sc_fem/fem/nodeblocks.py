@@ -13,19 +13,6 @@ import scipy.sparse as sp
 from .._jit import compiled_parallel, prange
 
 
-def _node_blocks_py(ptr, indices, data, bptr, bidx, bdata, bad):  # pragma: no cover - compiled
-    for i in prange(len(bptr) - 1):          # node rows split over the cores
-        for j in range(bptr[i + 1] - bptr[i]):
-            c = indices[ptr[3 * i] + 3 * j]
-            bidx[bptr[i] + j] = c // 3
-            for a in range(3):
-                s = ptr[3 * i + a] + 3 * j
-                for b in range(3):
-                    bdata[bptr[i] + j, a, b] = data[s + b]
-                    if indices[s + b] != c - c % 3 + b:
-                        bad[i] = True
-
-
 def _block_columns_py(ptr, indices, bptr, bidx, bad):  # pragma: no cover - compiled
     for i in prange(len(bptr) - 1):          # the block columns, and whether the rows share them
         for j in range(bptr[i + 1] - bptr[i]):
@@ -48,7 +35,6 @@ def _blocks_in_place_py(data, bptr):  # pragma: no cover - compiled
                     data[s0 + 9 * j + 3 * a + b] = buf[3 * a * L + 3 * j + b]
 
 
-_node_blocks = compiled_parallel(_node_blocks_py)
 _block_columns = compiled_parallel(_block_columns_py)
 _blocks_in_place = compiled_parallel(_blocks_in_place_py)
 
@@ -73,34 +59,22 @@ def node_blocks(A: sp.spmatrix, overwrite: bool = False) -> sp.bsr_matrix:
     -------
     scipy.sparse.bsr_matrix, shape (n, n)
     """
-    if overwrite and _blocks_in_place is not None and sp.isspmatrix_csr(A) and A.dtype == np.float64:
-        got = _node_blocks_in_place(A)
-        if got is not None:
-            return got
-    A = sp.csr_matrix(A, dtype=np.float64)
+    if not (sp.isspmatrix_csr(A) and A.dtype == np.float64):
+        A, overwrite = sp.csr_matrix(A, dtype=np.float64), True       # a copy of the caller's: ours
+    structure = _block_structure(A) if _blocks_in_place is not None else None
+    if structure is None:
+        return sp.bsr_matrix(A, blocksize=(3, 3))
+    bptr, bidx = structure
+    data = A.data if overwrite and A.data.flags.c_contiguous else A.data.copy()
+    _blocks_in_place(data, bptr)                 # the rows' values, node by node, into 3 x 3 blocks
+    return sp.bsr_matrix((data.reshape(-1, 3, 3), bidx, bptr), shape=A.shape)
+
+
+def _block_structure(A: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray] | None:
+    """The node blocks' ``indptr`` and column indices of a lattice CSR matrix ``A``, or None when its
+    rows do not share whole node columns (then scipy converts it)."""
     n = A.shape[0]
-    if _node_blocks is None or n % 3 or not A.has_sorted_indices:
-        return sp.bsr_matrix(A, blocksize=(3, 3))
-    cnt = np.diff(A.indptr)
-    per = cnt[0::3]
-    if np.any(per % 3) or np.any(cnt[1::3] != per) or np.any(cnt[2::3] != per):
-        return sp.bsr_matrix(A, blocksize=(3, 3))
-    bptr = np.concatenate([[0], np.cumsum(per // 3)]).astype(A.indptr.dtype)
-    bidx = np.empty(bptr[-1], dtype=A.indices.dtype)
-    bdata = np.empty((bptr[-1], 3, 3))
-    bad = np.zeros(n // 3, dtype=np.bool_)
-    _node_blocks(A.indptr, A.indices, A.data, bptr, bidx, bdata, bad)
-    if bad.any():                                # a node's rows do not share whole node columns
-        return sp.bsr_matrix(A, blocksize=(3, 3))
-    return sp.bsr_matrix((bdata, bidx, bptr), shape=A.shape)
-
-
-
-def _node_blocks_in_place(A: sp.csr_matrix) -> sp.bsr_matrix | None:
-    """:func:`node_blocks` with ``A``'s values reordered in place, or None (``A`` untouched) when its
-    rows do not share whole node columns."""
-    n = A.shape[0]
-    if n % 3 or not A.has_sorted_indices or not A.data.flags.c_contiguous:
+    if n % 3 or not A.has_sorted_indices:
         return None
     cnt = np.diff(A.indptr)
     per = cnt[0::3]
@@ -110,7 +84,4 @@ def _node_blocks_in_place(A: sp.csr_matrix) -> sp.bsr_matrix | None:
     bidx = np.empty(bptr[-1], dtype=A.indices.dtype)
     bad = np.zeros(n // 3, dtype=np.bool_)
     _block_columns(A.indptr, A.indices, bptr, bidx, bad)
-    if bad.any():
-        return None
-    _blocks_in_place(A.data, bptr)
-    return sp.bsr_matrix((A.data.reshape(-1, 3, 3), bidx, bptr), shape=A.shape)
+    return None if bad.any() else (bptr, bidx)
