@@ -264,7 +264,8 @@ def chart(records: list[dict]) -> None:
             for r in records:
                 if r[m] is not None and not 1 / 1.5 <= r[m] / r[key] <= 1.5:
                     ax.annotate(f"{r['shape']} r{r['res']}", (r[key], r[m]), fontsize=7,
-                                color="C1" if m == "lobpcg" else "C0", xytext=(4, -3), textcoords="offset points")
+                                color="C1" if m == "lobpcg" else "C0", xytext=(6, -10), textcoords="offset points",
+                                bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.85})
     lim = [0.1, 300]
     ax.loglog(lim, lim, "k-", lw=0.8, label="taken = predicted")
     ax.fill_between(lim, [v / 1.5 for v in lim], [v * 1.5 for v in lim], color="0.88", label="within 1.5x")
