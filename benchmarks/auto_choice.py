@@ -96,7 +96,7 @@ def measure(label: str, kind: str, mesh, r: int, scale: float, repeat: int) -> d
     from sc_fem.fem.fill import lobpcg_block, lobpcg_iterations
     from sc_fem.fem.multigrid import lattice_aggregates
     from sc_fem.fem.options import choose_method, fill_analysis, predicted_seconds
-    from sc_fem.fem.rigid import part_rigid_modes, rigid_body_modes
+    from sc_fem.fem.rigid import loose_start, rigid_body_modes
     from sc_fem.fem.static import node_parts
 
     model = sc_fem.voxelize(mesh, resolution=r, scale=scale)
@@ -127,7 +127,7 @@ def measure(label: str, kind: str, mesh, r: int, scale: float, repeat: int) -> d
     labels = node_parts(model)
     agg = lattice_aggregates(model, labels, free)
     # loose parts start from their own rigid motions, as sc_fem.modal starts them
-    start = part_rigid_modes(model.nodes_m, labels, np.arange(labels.max() + 1), free) if labels.max() > 0 else None
+    start = loose_start(model.nodes_m, labels, np.arange(labels.max() + 1), lobpcg_block(k), free)
     info = {}
     for _ in range(repeat):                                   # interleaved: both see the same load
         runs["shift-invert"].append(_timed(lambda: solve_eigen(K, M, k, method="shift-invert"), {},

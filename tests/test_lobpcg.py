@@ -176,7 +176,8 @@ def test_each_parts_rigid_fields_are_its_own_rigid_body_modes():
     np.testing.assert_array_equal(part_rigid_modes(points, labels, parts, free), B.reshape(120, 18)[free])
 
 
-def test_two_loose_parts_converge_faster_from_each_parts_rigid_motions():
+@pytest.mark.parametrize("origin", [(0.0, 0.0, 0.0), (5.0, -3.0, 2.0)])
+def test_two_loose_parts_converge_faster_from_each_parts_rigid_motions(origin):
     """Two separate bars, free: 12 zero modes. From the global 6 rigid fields LOBPCG must find the
     other 6 by iteration; from each part's 6 it has them at once. Both give shift-invert's
     frequencies; the per-part start takes fewer iterations (the toy truck of two bodies: 36, not 52)."""
@@ -185,7 +186,7 @@ def test_two_loose_parts_converge_faster_from_each_parts_rigid_motions():
     from sc_fem.fem.static import node_parts
 
     cells = np.vstack([np.argwhere(np.ones((12, 3, 3), bool)), np.argwhere(np.ones((9, 4, 2), bool)) + [0, 6, 0]])
-    m = CubeModel.from_cells(cells, origin=np.zeros(3), pitch=0.05, mass=np.full(len(cells), 1000.0 * 0.05**3),
+    m = CubeModel.from_cells(cells, origin=np.array(origin), pitch=0.05, mass=np.full(len(cells), 1000.0 * 0.05**3),
                              youngs=1e7, poisson=0.3, density=1000.0)
     assert m.n_components == 2
     K, M = Assembler(m, "q1i").stiffness(), Assembler(m, "q1i").mass()
@@ -199,3 +200,16 @@ def test_two_loose_parts_converge_faster_from_each_parts_rigid_motions():
         assert np.all(np.abs(r.eigenvalues[:12]) < 1e-6 * ref[12])
         got[name] = r.info["iterations"]
     assert got["parts"] < got["global"], got
+
+
+def test_the_loose_start_takes_the_largest_loose_parts_the_block_holds():
+    """One loose part: no start of its own (the global rigid fields serve). Three: the largest
+    first, as many whole parts as the columns hold, each its own rigid fields."""
+    from sc_fem.fem.rigid import loose_start, part_rigid_modes
+
+    rng = np.random.default_rng(2)
+    labels = np.repeat([0, 1, 2, 3], [5, 30, 12, 20])            # sizes: 1 > 3 > 2 > 0
+    points = rng.random((len(labels), 3)) + 10.0
+    assert loose_start(points, labels, np.array([2]), 20) is None
+    got = loose_start(points, labels, np.array([0, 2, 3, 1]), 20)   # room for 3 parts of 6 columns
+    np.testing.assert_array_equal(got, part_rigid_modes(points, labels, np.array([1, 3, 2])))

@@ -43,9 +43,10 @@ def node_blocks(A: sp.spmatrix, overwrite: bool = False) -> sp.bsr_matrix:
     """``A`` (n, n) as a BSR matrix of 3 x 3 node blocks.
 
     The lattice's CSR matrices (node-major interleaved DOFs, nodes fixed whole, sorted indices)
-    have the same columns in the 3 rows of a node; with numba the blocks are copied straight out
-    of them on every core (0.05 s instead of scipy's 0.6 s at 195,759 DOFs). Any other matrix, or
-    no numba, goes through scipy.
+    have the same columns in the 3 rows of a node; with numba their values are reordered node by
+    node into the blocks on every core (a copy of them, or ``A``'s own with ``overwrite``: 0.043 s
+    against scipy's 0.112 s at 175,863 DOFs, one run). Any other matrix, or no numba, goes through
+    scipy.
 
     Parameters
     ----------

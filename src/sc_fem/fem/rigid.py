@@ -72,3 +72,33 @@ def part_rigid_modes(points: np.ndarray, labels: np.ndarray, parts: np.ndarray,
     out[np.flatnonzero(on), :, c[on], :] = rigid_block(q / np.maximum(extent, 1e-300)[c[on], None])
     out = out.reshape(3 * len(p), 6 * len(parts))
     return out if free_dofs is None else out[free_dofs]
+
+
+def loose_start(points: np.ndarray, labels: np.ndarray, loose: np.ndarray, columns: int,
+                free_dofs: np.ndarray | None = None) -> np.ndarray | None:
+    """LOBPCG's start for a model of several loose parts: the rigid fields of the largest of them
+    (:func:`part_rigid_modes`), as many whole parts as ``columns`` hold; None for one loose part or
+    none (the global :func:`rigid_body_modes` are then the start).
+
+    Parameters
+    ----------
+    points : ndarray, shape (m, 3)
+        Node positions.
+    labels : ndarray of int, shape (m,)
+        Part of each node.
+    loose : ndarray of int
+        The parts free to move rigidly (unsupported).
+    columns : int
+        Columns of the start block (LOBPCG's block size).
+    free_dofs : ndarray of int, optional
+        Rows kept.
+
+    Returns
+    -------
+    ndarray, shape (3m or n_free, 6 p) or None
+    """
+    loose = np.asarray(loose, dtype=int)
+    if len(loose) < 2:
+        return None
+    largest = loose[np.argsort(-np.bincount(labels, minlength=int(labels.max()) + 1)[loose], kind="stable")]
+    return part_rigid_modes(points, labels, largest[:max(columns // 6, 1)], free_dofs)

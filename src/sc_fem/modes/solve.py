@@ -21,7 +21,7 @@ from ..fem.eigen import EigenSolver
 from ..fem.choice import choose_element
 from ..fem.highorder import DEGREES, HighOrderAssembler, HighOrderCubes
 from ..fem.fill import lobpcg_block
-from ..fem.rigid import part_rigid_modes, rigid_body_modes
+from ..fem.rigid import loose_start, rigid_body_modes
 from ..fem.multigrid import lattice_aggregates
 from ..fem.static import held_parts, node_parts
 from ..lattice.cubes import CubeModel
@@ -41,10 +41,9 @@ the threshold (measured with ``solve_eigen`` on ``CubeModel.box((200, 1, 1), ...
 
 def _unsupported_parts(model: CubeModel, labels: np.ndarray, fixed: np.ndarray) -> np.ndarray:
     """Connected parts (node ``labels``) whose fixed nodes leave some rigid motion free (each may
-    have up to 6), largest first."""
+    have up to 6)."""
     n_parts = int(labels.max()) + 1
-    loose = np.flatnonzero(~held_parts(model, labels, fixed, n_parts))
-    return loose[np.argsort(-np.bincount(labels, minlength=n_parts)[loose], kind="stable")]
+    return np.flatnonzero(~held_parts(model, labels, fixed, n_parts))
 
 
 @dataclass(frozen=True, eq=False)
@@ -104,8 +103,8 @@ def solve_scene(scene, req: ModalRequest) -> Solved:
     near_null = rigid_body_modes(nodes_m, asm.free_dofs)
     # several loose parts of a lattice: LOBPCG starts from each one's rigid motions (as many parts as
     # its block holds; higher-order cubes have nodes of their own, which the part labels do not cover)
-    start = (part_rigid_modes(nodes_m, labels, loose[:lobpcg_block(min(k, k_cap)) // 6], asm.free_dofs)
-             if len(loose) > 1 and element not in DEGREES else None)
+    start = (loose_start(nodes_m, labels, loose, lobpcg_block(min(k, k_cap)), asm.free_dofs)
+             if element not in DEGREES else None)
     solver = EigenSolver(K, M, method=req.eigen.solver, backend=req.eigen.backend, aggregates=aggregates,
                          near_null=near_null, start=start, max_memory=req.eigen.max_memory,
                          lattice=element not in DEGREES, overwrite=True)
