@@ -132,6 +132,114 @@ def winding_number(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray,
             - _fast_winding_number(closed_v[used], local.reshape(-1, 3), q))
 
 
+CONE_CERTAIN = 0.4
+""":func:`cell_winding` skips the cone's winding number in a cell where a bound says it is below this
+everywhere in the cell (it cannot change the rounded count; libigl's far-field error is ~5e-3)."""
+
+CONE_PIECES_BOUNDED = 256
+""":func:`cell_winding` bounds the cone's winding number piece by piece up to this many cone pieces
+(holes); past that, it is evaluated at every point."""
+
+
+def sub_offsets(n_sub: int) -> np.ndarray:
+    """Centres of the ``n_sub^3`` sub-cubes of a unit cube, shape (n_sub^3, 3), z fastest."""
+    return (np.stack(np.meshgrid(*[np.arange(n_sub)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5) / n_sub
+
+
+def _cone_certain(v: np.ndarray, apex: np.ndarray, cone: np.ndarray, centres: np.ndarray,
+                  half_diagonal: float) -> np.ndarray:
+    """Cells (centres (c, 3), model units) in which the cone's winding number is certainly below
+    :data:`CONE_CERTAIN` in magnitude: a surface of area ``A`` at distance ``>= d`` subtends a solid
+    angle of at most ``A / d^2``, summed over the cone's pieces (one fan per apex), each piece's
+    distance bounded by its apex, the radius of the fan and the cell's half diagonal. (On the bunny
+    at 64 it leaves 14 % of the surface cells, where the winding number exceeds 0.4 in 1 %; a
+    second bound from the value at the centre and the rims' field was tighter, 3 %, but cost as
+    much as the libigl calls it saved.)"""
+    if len(apex) > CONE_PIECES_BOUNDED:
+        return np.zeros(len(centres), dtype=bool)
+    tri = np.vstack([v, apex])[cone]
+    piece = cone[:, 2] - len(v)
+    area = np.bincount(piece, weights=0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]),
+                                                            axis=1), minlength=len(apex))
+    radius = np.zeros(len(apex))
+    np.maximum.at(radius, piece, np.linalg.norm(tri[:, :2] - apex[piece][:, None, :], axis=2).max(axis=1))
+    certain = np.zeros(len(centres), dtype=bool)
+    for s in range(0, len(centres), 1 << 16):            # chunks of cells x pieces (bounded memory)
+        d = np.linalg.norm(centres[s:s + (1 << 16), None, :] - apex[None], axis=2) - radius - half_diagonal
+        bound = np.sum(np.where(d > 0, area / np.where(d > 0, d, 1.0) ** 2, np.inf), axis=1) / (4 * np.pi)
+        certain[s:s + (1 << 16)] = bound < CONE_CERTAIN
+    return certain
+
+
+def cell_winding(vertices: np.ndarray, faces: np.ndarray, cells: np.ndarray, origin: np.ndarray, pitch: float,
+                 n_sub: int = 1, cone: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """The rounded generalized winding number at the sub-cube centres of grid cells.
+
+    Equal to ``np.rint(winding_number(vertices, faces, points, cone))`` for the points
+    ``origin + pitch * (cells[:, None, :] + sub_offsets(n_sub)[None])`` (so ``>= 1`` is
+    :func:`winding_number`'s ``> 1/2``), found faster: the points are visited along the rays
+    :func:`winding_number` casts, so that the points on one ray share its crossings
+    (:func:`~sc_fem.geometry.rays.crossing_number`), and, with several points a cell, the cone's
+    winding number over the holes is evaluated only in cells where it could reach
+    :data:`CONE_CERTAIN` (:func:`_cone_certain`; elsewhere it cannot change the rounded count).
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (n, 3)
+        Model units.
+    faces : ndarray of int, shape (m, 3)
+    cells : ndarray of int, shape (c, 3)
+        Grid cells.
+    origin : ndarray, shape (3,)
+        The grid's corner, model units.
+    pitch : float
+        The cells' side, model units.
+    n_sub : int
+        Sub-cubes per side of each cell.
+    cone : (apex, cone faces), optional
+        :func:`boundary_cone` of ``(vertices, faces)`` when the caller has it.
+
+    Returns
+    -------
+    ndarray of float, shape (c, n_sub^3)
+        Integer values, sub-cubes in :func:`sub_offsets` order.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    cells = np.asarray(cells, dtype=np.int64).reshape(-1, 3)
+    offs = sub_offsets(n_sub)
+    out = np.zeros((len(cells), len(offs)))
+    if len(f) == 0 or len(cells) == 0:
+        return out
+    apex, cone_f = boundary_cone(v, f) if cone is None else cone
+    closed_v = np.vstack([v, apex])
+    axis = _ray_axis(closed_v, f, cone_f, out.size) if len(cone_f) else 2
+    if axis is None:                         # the cone would crowd the ray-crossing bins: libigl alone
+        pts = origin + pitch * (cells[:, None, :] + offs[None])     # as the callers build them
+        return np.rint(_fast_winding_number(v, f, pts.reshape(-1, 3))).reshape(out.shape)
+    # visit the points ray by ray: the ray's axis fastest within a cell, and cells along it in turn
+    sub = np.moveaxis(np.arange(len(offs)).reshape((n_sub,) * 3), axis, -1).ravel()
+    others = [(axis + 1) % 3, (axis + 2) % 3]
+    by_ray = (np.lexsort((cells[:, axis], cells[:, others[1]], cells[:, others[0]])) if n_sub == 1 and axis != 2
+              else None)                                   # cells in C order already run along z
+    ray_cells = cells if by_ray is None else cells[by_ray]
+    q = (origin + pitch * (ray_cells[:, None, :] + offs[sub][None])).reshape(-1, 3)
+    order = [others[0], others[1], axis]                   # a rotation taking the ray's axis to z
+    count = crossing_number(closed_v[:, order], np.vstack([f, cone_f]), q[:, order])
+    if len(cone_f):          # one point a cell: libigl's far field is cheaper than the bound
+        near = (~_cone_certain(v, apex, cone_f, origin + pitch * (ray_cells + 0.5), 0.5 * np.sqrt(3) * pitch)
+                if n_sub > 1 else np.ones(len(cells), dtype=bool))
+        at = np.flatnonzero(np.repeat(near, len(offs)))
+        used, local = np.unique(cone_f, return_inverse=True)
+        count[at] = np.rint(count[at] - _fast_winding_number(closed_v[used], local.reshape(-1, 3), q[at]))
+    count = count.reshape(len(cells), len(offs))
+    if by_ray is not None:
+        out[by_ray] = count
+    else:
+        out[:, sub] = count
+    return out
+
+
 CONE_PAIRS = 8.0
 """:func:`winding_number` counts ray crossings (binned faces) when the cone's faces add at most
 this many (bin, face) pairs per face and query point; past that (a large flat hole seen along every

@@ -33,35 +33,79 @@ def _edge_sign_py(ax, ay, bx, by, px, py):  # pragma: no cover - compiled
 _edge_sign = compiled(_edge_sign_py)
 
 
+RUN = 256
+"""Points each parallel task of :data:`crossings` takes in order (so that it can reuse a ray)."""
+
+RAY_CACHE = 512
+"""Faces a reused ray may cross (more: each point on it is counted alone)."""
+
+
+def _face_under_py(t, px, py):  # pragma: no cover - compiled
+    """Height of face ``t`` (3, 3) at ``(px, py)`` and its sign, or sign 0 when the point's projection
+    is outside the face (or the face's box), with the edge signs of :func:`_edge_sign_py`."""
+    if not (min(t[0, 0], t[1, 0], t[2, 0]) <= px <= max(t[0, 0], t[1, 0], t[2, 0])
+            and min(t[0, 1], t[1, 1], t[2, 1]) <= py <= max(t[0, 1], t[1, 1], t[2, 1])):
+        return 0.0, 0.0
+    s0 = _edge_sign(t[0, 0], t[0, 1], t[1, 0], t[1, 1], px, py)
+    s1 = _edge_sign(t[1, 0], t[1, 1], t[2, 0], t[2, 1], px, py)
+    s2 = _edge_sign(t[2, 0], t[2, 1], t[0, 0], t[0, 1], px, py)
+    if s0 == 0 or s0 != s1 or s1 != s2:
+        return 0.0, 0.0
+    l0 = (t[1, 0] - px) * (t[2, 1] - py) - (t[1, 1] - py) * (t[2, 0] - px)
+    l1 = (t[2, 0] - px) * (t[0, 1] - py) - (t[2, 1] - py) * (t[0, 0] - px)
+    l2 = (t[0, 0] - px) * (t[1, 1] - py) - (t[0, 1] - py) * (t[1, 0] - px)
+    return (l0 * t[0, 2] + l1 * t[1, 2] + l2 * t[2, 2]) / (l0 + l1 + l2), s0
+
+
+_face_under = compiled(_face_under_py)
+
+
 def _crossings_py(q, tri, lo, hi, size, nb, start, bin_face, out):  # pragma: no cover - compiled
-    """Signed crossings above each point ``q`` (n, 3) of the binned faces ``tri`` (m, 3, 3), into ``out`` (n,)."""
-    for i in prange(q.shape[0]):
-        px, py, pz = q[i, 0], q[i, 1], q[i, 2]
-        fx = (px - lo[0]) / size[0]
-        fy = (py - lo[1]) / size[1]
-        if fx < 0 or fy < 0 or px > hi[0] or py > hi[1]:
-            continue
-        bx, by = min(int(fx), nb - 1), min(int(fy), nb - 1)     # x = hi may round to bin nb: the last bin
-        b = bx * nb + by
-        acc = 0.0
-        for k in range(start[b], start[b + 1]):
-            t = tri[bin_face[k]]
-            if not (min(t[0, 0], t[1, 0], t[2, 0]) <= px <= max(t[0, 0], t[1, 0], t[2, 0])
-                    and min(t[0, 1], t[1, 1], t[2, 1]) <= py <= max(t[0, 1], t[1, 1], t[2, 1])
-                    and max(t[0, 2], t[1, 2], t[2, 2]) > pz):
+    """Signed crossings above each point ``q`` (n, 3) of the binned faces ``tri`` (m, 3, 3), into ``out`` (n,).
+
+    Consecutive points with the same ``(x, y)`` share a ray: its crossings (height, top of the
+    face, sign) are found once and each point sums those above it, which counts the same faces
+    (a face above the point, ``max z > z_p``, whose height there exceeds ``z_p``) as a point alone."""
+    n = q.shape[0]
+    for r in prange((n + RUN - 1) // RUN):
+        zs = np.empty(RAY_CACHE)
+        tops = np.empty(RAY_CACHE)
+        signs = np.empty(RAY_CACHE)
+        cached = -1                              # crossings of the ray through (cx, cy); -1: none
+        cx, cy = np.nan, np.nan
+        for i in range(r * RUN, min(n, (r + 1) * RUN)):
+            px, py, pz = q[i, 0], q[i, 1], q[i, 2]
+            fx = (px - lo[0]) / size[0]
+            fy = (py - lo[1]) / size[1]
+            if fx < 0 or fy < 0 or px > hi[0] or py > hi[1]:
                 continue
-            s0 = _edge_sign(t[0, 0], t[0, 1], t[1, 0], t[1, 1], px, py)
-            s1 = _edge_sign(t[1, 0], t[1, 1], t[2, 0], t[2, 1], px, py)
-            s2 = _edge_sign(t[2, 0], t[2, 1], t[0, 0], t[0, 1], px, py)
-            if s0 == 0 or s0 != s1 or s1 != s2:
-                continue
-            l0 = (t[1, 0] - px) * (t[2, 1] - py) - (t[1, 1] - py) * (t[2, 0] - px)
-            l1 = (t[2, 0] - px) * (t[0, 1] - py) - (t[2, 1] - py) * (t[0, 0] - px)
-            l2 = (t[0, 0] - px) * (t[1, 1] - py) - (t[0, 1] - py) * (t[1, 0] - px)
-            z = (l0 * t[0, 2] + l1 * t[1, 2] + l2 * t[2, 2]) / (l0 + l1 + l2)
-            if z > pz:
-                acc += s0
-        out[i] = acc
+            bx, by = min(int(fx), nb - 1), min(int(fy), nb - 1)     # x = hi may round to bin nb: the last bin
+            b = bx * nb + by
+            shared = i + 1 < n and q[i + 1, 0] == px and q[i + 1, 1] == py
+            if not (cached >= 0 and px == cx and py == cy) and shared:
+                cached, cx, cy = 0, px, py          # the ray through this point and the next: all its crossings
+                for k in range(start[b], start[b + 1]):
+                    t = tri[bin_face[k]]
+                    z, s = _face_under(t, px, py)
+                    if s != 0:
+                        if cached == RAY_CACHE:
+                            cached = -1
+                            break
+                        zs[cached], tops[cached], signs[cached] = z, max(t[0, 2], t[1, 2], t[2, 2]), s
+                        cached += 1
+            acc = 0.0
+            if cached >= 0 and px == cx and py == cy:
+                for j in range(cached):
+                    if tops[j] > pz and zs[j] > pz:
+                        acc += signs[j]
+            else:
+                for k in range(start[b], start[b + 1]):
+                    t = tri[bin_face[k]]
+                    if max(t[0, 2], t[1, 2], t[2, 2]) > pz:
+                        z, s = _face_under(t, px, py)
+                        if s != 0 and z > pz:
+                            acc += s
+            out[i] = acc
 
 
 crossings = compiled_parallel(_crossings_py)

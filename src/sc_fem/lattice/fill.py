@@ -13,7 +13,7 @@ import numpy as np
 from .gridcut import cut_by_grid
 from .topology import unique_cells, voxel_index
 from .moments import FULL, box_moments, column_moments
-from ..geometry.inside import boundary_cone, winding_number
+from ..geometry.inside import boundary_cone, cell_winding, sub_offsets
 from ..geometry.rays import crossing_number
 from ..geometry.sampling import Samples, volume_samples
 
@@ -64,15 +64,15 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
     # closed parts have integer winding numbers: exact ray crossings; leaky ones need the generalized
     leaky_solids = not (parts.watertight | ~solid_part).all()
     cone = boundary_cone(sv, sf) if leaky_solids else None         # one cone for every call below
-    w_free = (winding_number(sv, sf, origin + pitch * (free + 0.5), cone) if leaky_solids
-              else crossing_number(sv, sf, origin + pitch * (free + 0.5)))
+    no_cone = (np.zeros((0, 3)), np.zeros((0, 3), np.int64))              # closed: ray crossings alone
+    w_free = cell_winding(sv, sf, free, origin, pitch, 1, cone if leaky_solids else no_cone)[:, 0]
     interior, w_interior = free[w_free > 0.5], w_free[w_free > 0.5]
 
     tight_part = solid_part & parts.watertight
     on_solid = solid_part[parts.label[surf.face]]
     tight = tight_part[parts.label[surf.face]]
     leaky = on_solid & ~tight
-    offs = (np.stack(np.meshgrid(*[np.arange(n_sub)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5) / n_sub
+    offs = sub_offsets(n_sub)
     pieces = []
     if tight.any():
         tf = parts.faces[tight_part[parts.label]]
@@ -108,7 +108,7 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
         if buried.any():
             # sub-cube spacing about 1/256 of the grid's longest side, whatever the resolution
             n_ov = max(n_sub, -(-OVERLAP_SAMPLES_PER_SIDE // int(dims.max())))
-            o_offs = (np.stack(np.meshgrid(*[np.arange(n_ov)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5) / n_ov
+            o_offs = sub_offsets(n_ov)
             ocells = unique_cells(voxel_index(pts[buried], origin, pitch, dims), dims)
             sub = origin + pitch * (ocells[:, None, :] + o_offs[None]).reshape(-1, 3)
             excess = np.clip(np.rint(crossing_number(vertices, tf, sub)) - 1.0, 0.0, None)
@@ -125,7 +125,7 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
     if leaky.any():
         bcells = unique_cells(voxel_index(surf.points[leaky], origin, pitch, dims), dims)
         pts = origin + pitch * (bcells[:, None, :] + offs[None]).reshape(-1, 3)
-        inside = winding_number(sv, sf, pts, cone) > 0.5          # leaky surface samples: a leaky solid part, so its cone
+        inside = cell_winding(sv, sf, bcells, origin, pitch, n_sub, cone).ravel() >= 1   # a leaky solid part: its cone
         if tight_part.any():        # not where a watertight part already counted the volume
             tf = parts.faces[tight_part[parts.label]]
             inside[inside] = crossing_number(vertices, tf, pts[inside]) < 0.5

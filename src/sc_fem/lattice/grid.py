@@ -11,6 +11,7 @@ from .._validate import positive_int, positive_scalar
 from ..errors import InputError, MaterialError, ResolutionError
 from ..geometry.sampling import grid_counts
 from .cubes import voxel_index
+from .topology import unique_keys
 from .options import DEFAULT_RESOLUTION, MAX_RESOLUTION, check_resolution
 
 SPACING_FRACTION = 0.125   # default sample spacing = pitch / 8
@@ -141,7 +142,7 @@ def hash_samples(points: np.ndarray, masses: np.ndarray, values: dict[str, np.nd
     n_p = 1 if piece is None or not len(piece) else int(piece.max()) + 1
     if n_p > 1:
         lin = lin * n_p + piece
-    uniq, inv = np.unique(lin, return_inverse=True)
+    uniq, inv = unique_keys(lin, int(np.prod(dims)) * n_p, return_inverse=True)
     cube_mass = np.bincount(inv, weights=masses, minlength=len(uniq))
     if np.any(cube_mass <= 0):
         raise MaterialError("a cube received zero mass; check density/mass values")

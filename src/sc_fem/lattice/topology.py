@@ -53,11 +53,54 @@ def voxel_index(points: np.ndarray, origin: np.ndarray, pitch: float, dims: np.n
     return np.clip(np.floor((p - origin) / pitch).astype(np.int64), 0, hi)
 
 
+DENSE_KEYS_PER_ITEM = 8
+""":func:`unique_keys` marks the keys in a table when it has at most this many entries per key
+(plus :data:`DENSE_KEYS_MIN`); larger, sparser key ranges are sorted."""
+
+DENSE_KEYS_MIN = 1 << 22
+"""Table entries :func:`unique_keys` allows whatever the number of keys (4 Mi: 32 MiB of indices)."""
+
+
+def unique_keys(keys: np.ndarray, size: int, return_inverse: bool = False):
+    """``np.unique(keys, return_inverse=...)`` for integer keys in ``[0, size)``, by marking a table
+    of ``size`` entries (O(n + size), no sort) when it is small enough (:data:`DENSE_KEYS_PER_ITEM`):
+    the same sorted keys and the same inverse.
+
+    Parameters
+    ----------
+    keys : ndarray of int, shape (n,)
+        Keys in ``[0, size)`` (linear cell or node indices).
+    size : int
+        The key range.
+    return_inverse : bool
+        Also return the index of each key in the result.
+
+    Returns
+    -------
+    uniq : ndarray of int64, shape (u,)
+        The distinct keys, ascending.
+    inverse : ndarray of int64, shape (n,)
+        With ``return_inverse``: ``uniq[inverse] == keys``.
+    """
+    keys = np.asarray(keys, dtype=np.int64).ravel()
+    if size > DENSE_KEYS_PER_ITEM * len(keys) + DENSE_KEYS_MIN:
+        out = np.unique(keys, return_inverse=return_inverse)
+        return (out[0], out[1].reshape(-1).astype(np.int64)) if return_inverse else out
+    mark = np.zeros(size, dtype=bool)
+    mark[keys] = True
+    uniq = np.flatnonzero(mark)
+    if not return_inverse:
+        return uniq
+    rank = np.empty(size, dtype=np.int64)
+    rank[uniq] = np.arange(len(uniq))
+    return uniq, rank[keys]
+
+
 def unique_cells(cells: np.ndarray, dims: np.ndarray) -> np.ndarray:
     """The distinct cells of ``cells`` (n, 3) int in a grid of ``dims``, shape (m, 3), sorted in
     C order (as ``np.unique(cells, axis=0)``, by their linear index: a 1-D sort, not a row sort)."""
     dims = np.asarray(dims, dtype=np.int64)
-    lin = np.unique(np.ravel_multi_index(np.asarray(cells, dtype=np.int64).T, dims))
+    lin = unique_keys(np.ravel_multi_index(np.asarray(cells, dtype=np.int64).T, dims), int(np.prod(dims)))
     return np.stack(np.unravel_index(lin, dims), axis=1).astype(np.int64)
 
 
@@ -84,7 +127,7 @@ def keyed_nodes(points: np.ndarray, ndims: np.ndarray, piece: np.ndarray) -> tup
     ndims = np.asarray(ndims, dtype=np.int64)
     lin = np.ravel_multi_index(points.reshape(-1, 3).T, ndims)
     n_p = int(piece.max()) + 1 if len(piece) else 1
-    uniq, inverse = np.unique(lin * n_p + np.repeat(piece, k), return_inverse=True)
+    uniq, inverse = unique_keys(lin * n_p + np.repeat(piece, k), int(np.prod(ndims)) * n_p, return_inverse=True)
     node_index = np.stack(np.unravel_index(uniq // n_p, ndims), axis=1).astype(np.int64)
     return node_index, inverse.reshape(n, k).astype(np.int64)
 

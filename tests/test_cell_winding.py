@@ -1,0 +1,133 @@
+"""Winding numbers on the voxel grid: :func:`sc_fem.geometry.inside.cell_winding` against
+:func:`sc_fem.geometry.inside.winding_number` point for point, the cone bound it skips libigl with
+against libigl, the compiled ray crossings that reuse a ray against the numpy path, and
+:func:`sc_fem.lattice.topology.unique_keys` against ``np.unique``."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+import sc_fem
+from sc_fem._jit import available as numba_available
+from sc_fem.geometry import inside_jit
+from sc_fem.geometry.inside import (CONE_CERTAIN, _cone_certain, _fast_winding_number, boundary_cone, cell_winding,
+                                    sub_offsets, winding_number)
+from sc_fem.geometry.rays import crossing_number
+from sc_fem.lattice.grid import grid_for
+from sc_fem.lattice.topology import unique_keys, voxel_index
+
+pytest.importorskip("igl")
+
+
+def _leaky_sphere(y_up: bool = False) -> trimesh.Trimesh:
+    """An icosphere with its top cap cut away (one large round hole), 3 m off the origin."""
+    s = trimesh.creation.icosphere(3, radius=0.8)
+    keep = s.face_normals[:, 2] < 0.7
+    m = trimesh.Trimesh(s.vertices + [3.0, -1.0, 2.0], s.faces[keep], process=False)
+    if y_up:
+        m.vertices = m.vertices[:, [0, 2, 1]] * [1, 1, -1]
+    return m
+
+
+def _holey_box() -> trimesh.Trimesh:
+    """A box with two opposite faces' triangles removed at random spots (several small holes) and a
+    separate closed sphere: parts of both kinds in one call."""
+    b = trimesh.creation.box(extents=[1.0, 0.6, 0.4]).subdivide().subdivide()
+    keep = np.ones(len(b.faces), bool)
+    keep[np.random.default_rng(5).choice(len(b.faces), 6, replace=False)] = False
+    box = trimesh.Trimesh(b.vertices, b.faces[keep], process=False)
+    ball = trimesh.creation.icosphere(2, radius=0.2).apply_translation([0.9, 0.0, 0.0])
+    return trimesh.util.concatenate([box, ball])
+
+
+def _grid(v: np.ndarray, res: int):
+    b = np.array([v.min(0), v.max(0)])
+    return grid_for(b, pitch=float((b[1] - b[0]).max()) / res)
+
+
+CASES = {"leaky sphere": (_leaky_sphere, 16), "y-up leaky sphere": (lambda: _leaky_sphere(True), 16),
+         "holey box and ball": (_holey_box, 20), "closed sphere": (lambda: trimesh.creation.icosphere(2), 8)}
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+@pytest.mark.parametrize("n_sub", [1, 3])
+def test_cell_winding_is_the_rounded_winding_number_point_for_point(name, n_sub, rng):
+    make, res = CASES[name]
+    mesh = make()
+    v, f = np.asarray(mesh.vertices, float), np.asarray(mesh.faces)
+    origin, pitch, dims = _grid(v, res)
+    cells = np.argwhere(np.ones(tuple(dims), bool))
+    cells = cells[rng.permutation(len(cells))[: max(len(cells) // 2, 1)]]      # any cells, any order
+    pts = origin + pitch * (cells[:, None, :] + sub_offsets(n_sub)[None])
+    ref = np.rint(winding_number(v, f, pts.reshape(-1, 3))).reshape(len(cells), -1)
+    got = cell_winding(v, f, cells, origin, pitch, n_sub)
+    np.testing.assert_array_equal(got, ref)
+    assert set(np.unique(got)) >= {0.0, 1.0}
+
+
+def test_cell_winding_on_the_bunny_surface_cells_as_the_voxelizer_calls_it():
+    """The bunny (5 holes) at 32: the surface cells' 4^3 sub-cube centres, the cone passed in."""
+    from conftest import SHARED_MESHES
+    path = SHARED_MESHES / "bunny.obj"
+    if not path.is_file():
+        pytest.skip(f"{path} absent")
+    mesh = sc_fem.load_mesh(str(path))
+    v, f = np.asarray(mesh.vertices, float), np.asarray(mesh.faces)
+    origin, pitch, dims = _grid(v, 32)
+    cells = np.unique(voxel_index(v, origin, pitch, dims), axis=0)
+    cone = boundary_cone(v, f)
+    assert len(cone[0]) >= 5
+    pts = origin + pitch * (cells[:, None, :] + sub_offsets(4)[None])
+    ref = np.rint(winding_number(v, f, pts.reshape(-1, 3), cone)).reshape(len(cells), -1)
+    np.testing.assert_array_equal(cell_winding(v, f, cells, origin, pitch, 4, cone), ref)
+
+
+@pytest.mark.parametrize("name", ["leaky sphere", "holey box and ball"])
+def test_cone_bound_holds_at_every_point_of_a_certified_cell(name):
+    """Where :func:`_cone_certain` skips libigl, libigl's cone winding number (at 5^3 points of each
+    cell, corners included) is below the threshold; and the bound is not vacuous."""
+    mesh = CASES[name][0]()
+    v, f = np.asarray(mesh.vertices, float), np.asarray(mesh.faces)
+    origin, pitch, dims = _grid(v, 24)
+    apex, cone = boundary_cone(v, f)
+    cells = np.argwhere(np.ones(tuple(dims), bool))
+    sure = _cone_certain(v, apex, cone, origin + pitch * (cells + 0.5), 0.5 * np.sqrt(3) * pitch)
+    assert 0.2 < sure.mean() < 1.0
+    t = np.linspace(0.0, 1.0, 5)
+    offs = np.stack(np.meshgrid(t, t, t, indexing="ij"), -1).reshape(-1, 3)
+    pts = (origin + pitch * (cells[sure][:, None, :] + offs[None])).reshape(-1, 3)
+    cv = np.vstack([v, apex])
+    used, local = np.unique(cone, return_inverse=True)
+    w = _fast_winding_number(cv[used], local.reshape(-1, 3), pts)
+    assert np.abs(w).max() < CONE_CERTAIN
+
+
+@pytest.mark.skipif(not numba_available(), reason="the compiled kernel needs numba (extra 'fast')")
+def test_compiled_crossings_reusing_rays_agree_with_numpy_also_past_the_ray_cache(rng):
+    """Points in runs along rays (the voxelizer's order) and a ray through more faces than
+    :data:`inside_jit.RAY_CACHE` (a stack of thin boxes) count what the numpy path counts."""
+    n_box = inside_jit.RAY_CACHE // 2 + 10
+    boxes = [trimesh.creation.box(bounds=[[0, 0, 2 * i], [1, 1, 2 * i + 1]]) for i in range(n_box)]
+    stack = trimesh.util.concatenate(boxes)
+    v, f = np.asarray(stack.vertices), np.asarray(stack.faces)
+    xy = rng.random((40, 2)) * 1.2 - 0.1
+    z = np.linspace(-1.0, 2.0 * n_box + 1.0, 25)
+    q = np.column_stack([np.repeat(xy, len(z), axis=0), np.tile(z, len(xy))])    # 25 points a ray
+    q = np.vstack([q, rng.random((300, 3)) * [1, 1, 2 * n_box]])                  # and lone points
+    got = crossing_number(v, f, q, kernel="numba")
+    np.testing.assert_array_equal(got, crossing_number(v, f, q, kernel="numpy"))
+    on = np.all((q[:, :2] > 0) & (q[:, :2] < 1), axis=1)
+    assert got[on].max() == 1 and got[on].min() == 0 and got[on].sum() > 100
+
+
+@pytest.mark.parametrize("size", [50, 10**9])            # the table, and the sort for a sparse range
+def test_unique_keys_is_np_unique(size, rng):
+    keys = rng.integers(0, size, 3000)
+    u, inv = unique_keys(keys, size, return_inverse=True)
+    ref_u, ref_inv = np.unique(keys, return_inverse=True)
+    np.testing.assert_array_equal(u, ref_u)
+    np.testing.assert_array_equal(inv, ref_inv)
+    np.testing.assert_array_equal(unique_keys(keys, size), ref_u)
+    assert u.dtype == np.int64 and inv.dtype == np.int64
