@@ -131,3 +131,23 @@ def test_unique_keys_is_np_unique(size, rng):
     np.testing.assert_array_equal(inv, ref_inv)
     np.testing.assert_array_equal(unique_keys(keys, size), ref_u)
     assert u.dtype == np.int64 and inv.dtype == np.int64
+
+
+@pytest.mark.parametrize("kernel", ["numpy"] + (["numba"] if numba_available() else []))
+def test_mark_cells_marks_each_selected_points_cell_as_a_loop_does(kernel, rng):
+    """Points on and off the grid (clipped into it), on cell faces, with a selection: the same grid
+    as marking point by point with :func:`voxel_index` (the oracle)."""
+    from sc_fem.lattice.topology import mark_cells
+
+    origin, pitch, dims = np.array([-1.0, 2.0, 0.5]), 0.25, np.array([7, 5, 9])
+    p = origin + pitch * (rng.random((400, 3)) * (dims + 2) - 1)
+    p[:100] = origin + pitch * np.round(rng.random((100, 3)) * dims)        # on cell faces and the grid's
+    select = rng.random(len(p)) < 0.6
+    ref = np.zeros(tuple(dims), bool)
+    for i in np.flatnonzero(select):                                         # point by point: the oracle
+        ref[tuple(voxel_index(p[i:i + 1], origin, pitch, dims, kernel="numpy")[0])] = True
+    got = mark_cells(np.zeros(tuple(dims), bool), p, origin, pitch, select, kernel=kernel)
+    np.testing.assert_array_equal(got, ref)
+    assert 0 < ref.sum() < ref.size
+    all_ = mark_cells(np.zeros(tuple(dims), bool), p, origin, pitch, kernel=kernel)
+    assert all_.sum() > ref.sum() - 1 and np.all(all_ >= ref)

@@ -223,15 +223,16 @@ def cell_winding(vertices: np.ndarray, faces: np.ndarray, cells: np.ndarray, ori
     by_ray = (np.lexsort((cells[:, axis], cells[:, others[1]], cells[:, others[0]])) if n_sub == 1 and axis != 2
               else None)                                   # cells in C order already run along z
     ray_cells = cells if by_ray is None else cells[by_ray]
-    q = (origin + pitch * (ray_cells[:, None, :] + offs[sub][None])).reshape(-1, 3)
     order = [others[0], others[1], axis]                   # a rotation taking the ray's axis to z
-    count = crossing_number(closed_v[:, order], np.vstack([f, cone_f]), q[:, order])
+    o = np.asarray(origin, dtype=np.float64)[order]
+    q = (o + pitch * (ray_cells[:, order][:, None, :] + offs[sub][:, order][None])).reshape(-1, 3)   # rotated
+    count = crossing_number(closed_v[:, order], np.vstack([f, cone_f]), q)
     if len(cone_f):          # one point a cell: libigl's far field is cheaper than the bound
         near = (~_cone_certain(v, apex, cone_f, origin + pitch * (ray_cells + 0.5), 0.5 * np.sqrt(3) * pitch)
                 if n_sub > 1 else np.ones(len(cells), dtype=bool))
         at = np.flatnonzero(np.repeat(near, len(offs)))
         used, local = np.unique(cone_f, return_inverse=True)
-        count[at] = np.rint(count[at] - _fast_winding_number(closed_v[used], local.reshape(-1, 3), q[at]))
+        count[at] = np.rint(count[at] - _fast_winding_number(closed_v[used], local.reshape(-1, 3), q[at][:, np.argsort(order)]))
     count = count.reshape(len(cells), len(offs))
     if by_ray is not None:
         out[by_ray] = count

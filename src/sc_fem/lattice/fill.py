@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from .gridcut import cut_by_grid
-from .topology import unique_cells, voxel_index
+from .topology import mark_cells, unique_cells, voxel_index
 from .moments import FULL, box_moments, column_moments
 from ..geometry.inside import boundary_cone, cell_winding, sub_offsets
 from ..geometry.rays import crossing_number
@@ -123,7 +123,7 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
                               mom[keep] - mom[keep][:, :1] * FULL, np.arange(n_kept)))    # beyond an even share
     pieces.append(volume_samples(interior, origin, pitch))          # whole cubes: even shares, no moments
     if leaky.any():
-        bcells = unique_cells(voxel_index(surf.points[leaky], origin, pitch, dims), dims)
+        bcells = np.argwhere(mark_cells(np.zeros(occupied.shape, dtype=bool), surf.points, origin, pitch, leaky))
         pts = origin + pitch * (bcells[:, None, :] + offs[None]).reshape(-1, 3)
         inside = cell_winding(sv, sf, bcells, origin, pitch, n_sub, cone).ravel() >= 1   # a leaky solid part: its cone
         if tight_part.any():        # not where a watertight part already counted the volume

@@ -15,6 +15,7 @@ from ..geometry.inside import mesh_parts
 from ..geometry.sampling import Samples
 from ..material import resolve_field
 from .cubes import voxel_index
+from .topology import mark_cells
 from .fill import solid_fill
 from .options import VoxelOptions
 from .overlap import overlapping_cells
@@ -68,7 +69,7 @@ def _occupied_cells(surf: Samples, vertices, faces, grid, occupancy: str, own_ve
     origin, pitch, dims = grid
     pts, verts = (surf.points, vertices) if located is None else located
     occupied = np.zeros(tuple(int(d) for d in dims), dtype=bool)
-    occupied[tuple(voxel_index(pts, origin, pitch, dims).T)] = True
+    mark_cells(occupied, pts, origin, pitch)
     vertex_cells = voxel_index(verts if own_vertices is None else verts[own_vertices], origin, pitch, dims)
     n_vertex_only = int((~occupied[tuple(vertex_cells.T)]).sum())
     occupied[tuple(vertex_cells.T)] = True      # every vertex's cube is in the model
@@ -103,7 +104,7 @@ def _mass_samples(occupied: np.ndarray, surf: Samples, vertices, faces, grid, op
                       "shell_parts": int((~solid_part).sum())}
         if solid_faces.any():
             solid = solid_fill(occupied, vertices, parts, solid_part, surf, origin, pitch, n_sub)
-            occupied[tuple(voxel_index(solid.points, origin, pitch, dims).T)] = True
+            mark_cells(occupied, solid.points, origin, pitch)
             if opts.fill == "solid" and len(solid) == 0:
                 raise InputError("fill='solid' but the surface encloses no volume at this resolution; "
                                  "use fill='auto' or 'surface' (open sheets become shells)")
@@ -111,7 +112,7 @@ def _mass_samples(occupied: np.ndarray, surf: Samples, vertices, faces, grid, op
 
     filled = np.zeros(occupied.shape, dtype=bool)
     for pts in (solid.points, shell.points):
-        filled[tuple(voxel_index(pts, origin, pitch, dims).T)] = True
+        mark_cells(filled, pts, origin, pitch)
     empty = np.argwhere(occupied & ~filled)
     floor = Samples(origin + pitch * (empty + 0.5), np.full(len(empty), 0.5 * pitch**3 / n_sub**3),
                     np.full(len(empty), -1, dtype=np.int64))

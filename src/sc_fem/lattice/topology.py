@@ -53,6 +53,45 @@ def voxel_index(points: np.ndarray, origin: np.ndarray, pitch: float, dims: np.n
     return np.clip(np.floor((p - origin) / pitch).astype(np.int64), 0, hi)
 
 
+def mark_cells(grid: np.ndarray, points: np.ndarray, origin: np.ndarray, pitch: float,
+               select: np.ndarray | None = None, kernel: str = "auto") -> np.ndarray:
+    """Set ``grid[cell] = True`` for the cell of every point (as :func:`voxel_index` finds it), in place.
+
+    ``grid[tuple(voxel_index(points[select], origin, pitch, grid.shape).T)] = True`` without the
+    cells array or the selected copy: one compiled pass (:mod:`sc_fem.lattice.topology_jit`, with
+    numba, from :data:`VOXEL_INDEX_COMPILED_FROM` points) or that numpy line.
+
+    Parameters
+    ----------
+    grid : ndarray of bool, shape dims
+        The grid to mark (C-contiguous).
+    points : ndarray, shape (n, 3)
+        Model units.
+    origin : ndarray, shape (3,)
+        The grid's corner, model units.
+    pitch : float
+        The cells' side, model units.
+    select : ndarray of bool, shape (n,), optional
+        The points to mark (default all).
+    kernel : {"auto", "numba", "numpy"}
+
+    Returns
+    -------
+    ndarray of bool
+        ``grid``.
+    """
+    p = np.asarray(points)
+    dims = np.array(grid.shape, dtype=np.int64)
+    compiled = choose_kernel(kernel) == "numba" and (kernel == "numba" or len(p) >= VOXEL_INDEX_COMPILED_FROM)
+    if compiled and p.ndim == 2 and p.shape[1] == 3 and grid.flags.c_contiguous:
+        sel = np.zeros(0, dtype=bool) if select is None else np.asarray(select, dtype=bool)
+        topology_jit.mark(np.ascontiguousarray(p, dtype=np.float64), np.asarray(origin, dtype=np.float64).reshape(3),
+                          float(pitch), dims - 1, sel, grid)
+        return grid
+    grid[tuple(voxel_index(p if select is None else p[select], origin, pitch, dims, kernel="numpy").T)] = True
+    return grid
+
+
 DENSE_KEYS_PER_ITEM = 8
 """:func:`unique_keys` marks the keys in a table when it has at most this many entries per key
 (plus :data:`DENSE_KEYS_MIN`); larger, sparser key ranges are sorted."""

@@ -23,3 +23,21 @@ def _cells_py(points, origin, pitch, hi, out):  # pragma: no cover - compiled
 
 cells = compiled_parallel(_cells_py)
 """The compiled :func:`_cells_py` (None without numba)."""
+
+
+def _mark_py(points, origin, pitch, hi, select, grid):  # pragma: no cover - compiled
+    """``grid[cell of points[i]] = True`` for every ``i`` with ``select[i]`` (all when ``select`` is
+    empty), the cell as :func:`_cells_py` finds it; points split over the cores (every write is True)."""
+    for i in prange(points.shape[0]):
+        if select.shape[0] and not select[i]:
+            continue
+        c0 = int(math.floor((points[i, 0] - origin[0]) / pitch))
+        c1 = int(math.floor((points[i, 1] - origin[1]) / pitch))
+        c2 = int(math.floor((points[i, 2] - origin[2]) / pitch))
+        grid[0 if c0 < 0 else (hi[0] if c0 > hi[0] else c0),
+             0 if c1 < 0 else (hi[1] if c1 > hi[1] else c1),
+             0 if c2 < 0 else (hi[2] if c2 > hi[2] else c2)] = True
+
+
+mark = compiled_parallel(_mark_py)
+"""The compiled :func:`_mark_py` (None without numba)."""
