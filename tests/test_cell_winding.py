@@ -12,8 +12,8 @@ import trimesh
 import sc_fem
 from sc_fem._jit import available as numba_available
 from sc_fem.geometry import inside_jit
-from sc_fem.geometry.inside import (CONE_CERTAIN, _cone_certain, _fast_winding_number, boundary_cone, cell_winding,
-                                    sub_offsets, winding_number)
+from sc_fem.geometry.cellwinding import CONE_CERTAIN, _cone_certain, _rim_bounds, cell_winding, sub_offsets
+from sc_fem.geometry.inside import _fast_winding_number, boundary_cone, winding_number
 from sc_fem.geometry.rays import crossing_number
 from sc_fem.lattice.grid import grid_for
 from sc_fem.lattice.topology import unique_keys, voxel_index
@@ -151,3 +151,32 @@ def test_mark_cells_marks_each_selected_points_cell_as_a_loop_does(kernel, rng):
     assert 0 < ref.sum() < ref.size
     all_ = mark_cells(np.zeros(tuple(dims), bool), p, origin, pitch, kernel=kernel)
     assert all_.sum() > ref.sum() - 1 and np.all(all_ >= ref)
+
+
+@pytest.mark.skipif(not numba_available(), reason="the compiled kernel needs numba (extra 'fast')")
+def test_rim_bounds_compiled_numpy_and_a_loop_agree(rng):
+    """The distance to the cone triangles' boxes and the rims' gradient bound: compiled kernel,
+    numpy path and a loop over (centre, triangle) pairs (the oracle)."""
+    mesh = _holey_box()
+    v, f = np.asarray(mesh.vertices, float), np.asarray(mesh.faces)
+    apex, cone = boundary_cone(v, f)
+    tri = np.vstack([v, apex])[cone]
+    c = v.min(0) + np.ptp(v, axis=0) * rng.random((300, 3))
+    h = 0.02
+    box_f, grad_f = _rim_bounds(c, tri, h, kernel="numba")
+    box_n, grad_n = _rim_bounds(c, tri, h, kernel="numpy")
+    box_o, grad_o = np.empty(len(c)), np.empty(len(c))
+    for i in range(len(c)):                                  # the oracle: centre by centre, triangle by triangle
+        near, g = np.inf, 0.0
+        for t in tri:
+            near = min(near, np.linalg.norm(np.clip(c[i], t.min(0), t.max(0)) - c[i]))
+            e = t[1] - t[0]
+            s = np.clip(np.dot(c[i] - t[0], e) / np.dot(e, e), 0.0, 1.0)
+            d = np.linalg.norm(c[i] - t[0] - s * e) - h
+            g += np.linalg.norm(e) / d**2 if d > 0 else np.inf
+        box_o[i], grad_o[i] = near, g / (4 * np.pi)
+    for box, grad in ((box_f, grad_f), (box_n, grad_n)):
+        np.testing.assert_allclose(box, box_o, rtol=1e-12, atol=1e-15)
+        np.testing.assert_array_equal(np.isinf(grad), np.isinf(grad_o))
+        np.testing.assert_allclose(grad[np.isfinite(grad)], grad_o[np.isfinite(grad_o)], rtol=1e-10)
+    assert np.isfinite(grad_o).sum() > 100

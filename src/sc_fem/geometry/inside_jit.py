@@ -142,3 +142,35 @@ def _bin_faces_py(tri, lo, size, nb):  # pragma: no cover - compiled
 
 bin_faces = compiled(_bin_faces_py)
 """The compiled :func:`_bin_faces_py` (None without numba)."""
+
+
+def _rim_bounds_py(c, lo, hi, a, e, h, box, grad):  # pragma: no cover - compiled
+    """For each centre ``c`` (k, 3): the distance to the nearest box ``[lo, hi]`` (f, 3) of a cone
+    triangle into ``box`` (k,), and ``1/(4 pi) sum over rim edges (a, a + e) of |e| / (distance - h)^2``
+    (inf when an edge comes within ``h``) into ``grad`` (k,) -- the numpy path of
+    :func:`sc_fem.geometry.inside._rim_bounds`, with the same arithmetic."""
+    for i in prange(c.shape[0]):
+        near = np.inf
+        g = 0.0
+        for t in range(a.shape[0]):
+            d2 = 0.0
+            for j in range(3):
+                d = max(lo[t, j] - c[i, j], 0.0, c[i, j] - hi[t, j])
+                d2 += d * d
+            near = min(near, d2)
+            ee = e[t, 0] * e[t, 0] + e[t, 1] * e[t, 1] + e[t, 2] * e[t, 2]
+            s = ((c[i, 0] - a[t, 0]) * e[t, 0] + (c[i, 1] - a[t, 1]) * e[t, 1] + (c[i, 2] - a[t, 2]) * e[t, 2]) \
+                / max(ee, 1e-300)
+            s = min(max(s, 0.0), 1.0)
+            r2 = 0.0
+            for j in range(3):
+                r = c[i, j] - a[t, j] - s * e[t, j]
+                r2 += r * r
+            dist = np.sqrt(r2) - h
+            g += np.sqrt(ee) / (dist * dist) if dist > 0 else np.inf
+        box[i] = np.sqrt(near)
+        grad[i] = g / (4 * np.pi)
+
+
+rim_bounds = compiled_parallel(_rim_bounds_py)
+"""The compiled :func:`_rim_bounds_py` (None without numba)."""

@@ -13,7 +13,8 @@ import numpy as np
 from .gridcut import cut_by_grid
 from .topology import mark_cells, unique_cells, voxel_index
 from .moments import FULL, box_moments, column_moments
-from ..geometry.inside import boundary_cone, cell_winding, sub_offsets
+from ..geometry.cellwinding import cell_winding, sub_offsets
+from ..geometry.inside import boundary_cone
 from ..geometry.rays import crossing_number
 from ..geometry.sampling import Samples, volume_samples
 

@@ -1,0 +1,170 @@
+"""Winding numbers on a voxel grid: the rounded generalized winding number at the centres of cells
+and of their sub-cubes, as the solid fill of the lattice asks for them.
+
+:func:`cell_winding` gives what :func:`sc_fem.geometry.inside.winding_number` gives, rounded, at
+those points, faster: it visits them along the rays the crossings are counted on, so that the
+points on a ray share its crossings, and it skips libigl's winding number of the cone over the
+holes in cells where a bound (:func:`_cone_certain`) shows it cannot change the rounded count.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import inside_jit
+from .._jit import choose_kernel
+from .inside import _fast_winding_number, _ray_axis, boundary_cone
+from .rays import crossing_number
+
+CONE_CERTAIN = 0.4
+""":func:`cell_winding` skips the cone's winding number in a cell where a bound says it is below this
+everywhere in the cell (it cannot change the rounded count; libigl's far-field error is ~5e-3)."""
+
+CONE_PIECES_BOUNDED = 256
+""":func:`cell_winding` bounds the cone's winding number piece by piece up to this many cone pieces
+(holes); past that, it is evaluated at every point."""
+
+
+def sub_offsets(n_sub: int) -> np.ndarray:
+    """Centres of the ``n_sub^3`` sub-cubes of a unit cube, shape (n_sub^3, 3), z fastest."""
+    return (np.stack(np.meshgrid(*[np.arange(n_sub)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5) / n_sub
+
+
+def _rim_bounds(centres: np.ndarray, tri: np.ndarray, half_diagonal: float,
+                kernel: str = "auto") -> tuple[np.ndarray, np.ndarray]:
+    """For cells (centres (k, 3)) near the cone's triangles ``tri`` (f, 3, 3), whose first two corners
+    are an edge of a hole's rim: the distance of each centre to the nearest triangle's box, and a
+    bound of the cone's winding number's gradient in the cell, ``1/(4 pi) * sum over rim edges of
+    length / (distance - half_diagonal)^2`` (Biot--Savart: the gradient of a surface's solid angle
+    is the field of its rim; inf where an edge is within the half diagonal). Compiled
+    (:data:`sc_fem.geometry.inside_jit.rim_bounds`, with numba) or numpy; both agree to round-off.
+    Returns two arrays of shape (k,), model units and 1 / model units."""
+    lo, hi = tri.min(axis=1), tri.max(axis=1)
+    a, e = np.ascontiguousarray(tri[:, 0]), np.ascontiguousarray(tri[:, 1] - tri[:, 0])
+    c = np.ascontiguousarray(centres, dtype=np.float64)
+    if choose_kernel(kernel) == "numba":
+        box, grad = np.empty(len(c)), np.empty(len(c))
+        inside_jit.rim_bounds(c, lo, hi, a, e, float(half_diagonal), box, grad)
+        return box, grad
+    box, grad = np.empty(len(c)), np.empty(len(c))
+    step = max(1, (1 << 20) // max(len(tri), 1))
+    for s in range(0, len(c), step):                      # chunks of cells x triangles (bounded memory)
+        q = c[s:s + step, None, :]
+        box[s:s + step] = np.linalg.norm(np.maximum(np.maximum(lo[None] - q, q - hi[None]), 0.0), axis=2).min(axis=1)
+        t = np.clip(np.einsum("kfj,fj->kf", q - a[None], e) / np.maximum(np.einsum("ij,ij->i", e, e), 1e-300), 0.0, 1.0)
+        dist = np.linalg.norm(q - a[None] - t[..., None] * e[None], axis=2) - half_diagonal
+        grad[s:s + step] = np.sum(np.where(dist > 0, np.linalg.norm(e, axis=1) / np.where(dist > 0, dist, 1.0) ** 2,
+                                           np.inf), axis=1) / (4 * np.pi)
+    return box, grad
+
+
+def _cone_certain(v: np.ndarray, apex: np.ndarray, cone: np.ndarray, centres: np.ndarray,
+                  half_diagonal: float) -> np.ndarray:
+    """Cells (centres (c, 3), model units) in which the cone's winding number is certainly below
+    :data:`CONE_CERTAIN` in magnitude, in two steps.
+
+    1. Far from the holes: a surface of area ``A`` at distance ``>= d`` subtends a solid angle of at
+       most ``A / d^2``; summed over the cone's pieces (one fan per apex), each piece's distance
+       bounded by its apex, the radius of the fan and the cell's half diagonal ``h``.
+    2. The others, when no cone triangle's box comes within ``h`` of the centre (so the winding
+       number is smooth in the cell): its value at the centre (libigl) plus ``h`` times the bound of
+       its gradient of :func:`_rim_bounds`.
+
+    On the bunny at 64 the first step leaves 14 % of the surface cells, the second 3.4 %; the
+    winding number exceeds 0.4 in 1.1 %.
+    """
+    if len(apex) > CONE_PIECES_BOUNDED:
+        return np.zeros(len(centres), dtype=bool)
+    cv = np.vstack([v, apex])
+    tri = cv[cone]
+    piece = cone[:, 2] - len(v)
+    area = np.bincount(piece, weights=0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]),
+                                                            axis=1), minlength=len(apex))
+    radius = np.zeros(len(apex))
+    np.maximum.at(radius, piece, np.linalg.norm(tri[:, :2] - apex[piece][:, None, :], axis=2).max(axis=1))
+    certain = np.zeros(len(centres), dtype=bool)
+    for s in range(0, len(centres), 1 << 16):            # chunks of cells x pieces (bounded memory)
+        d = np.linalg.norm(centres[s:s + (1 << 16), None, :] - apex[None], axis=2) - radius - half_diagonal
+        bound = np.sum(np.where(d > 0, area / np.where(d > 0, d, 1.0) ** 2, np.inf), axis=1) / (4 * np.pi)
+        certain[s:s + (1 << 16)] = bound < CONE_CERTAIN
+    rest = np.flatnonzero(~certain)
+    if len(rest) == 0:
+        return certain
+    box, grad = _rim_bounds(centres[rest], tri, half_diagonal)
+    rest, grad = rest[box > half_diagonal], grad[box > half_diagonal]
+    used, local = np.unique(cone, return_inverse=True)
+    w_c = _fast_winding_number(cv[used], local.reshape(-1, 3), centres[rest])
+    certain[rest] = np.abs(w_c) + half_diagonal * grad < CONE_CERTAIN
+    return certain
+
+
+def cell_winding(vertices: np.ndarray, faces: np.ndarray, cells: np.ndarray, origin: np.ndarray, pitch: float,
+                 n_sub: int = 1, cone: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """The rounded generalized winding number at the sub-cube centres of grid cells.
+
+    Equal to ``np.rint(winding_number(vertices, faces, points, cone))``
+    (:func:`~sc_fem.geometry.inside.winding_number`) for the points
+    ``origin + pitch * (cells[:, None, :] + sub_offsets(n_sub)[None])`` (so ``>= 1`` is its
+    ``> 1/2``), found faster: the points are visited along the rays it casts, so that the points
+    on one ray share its crossings (:func:`~sc_fem.geometry.rays.crossing_number`), and, with
+    several points a cell, the cone's winding number over the holes is evaluated only in cells
+    where it could reach :data:`CONE_CERTAIN` (:func:`_cone_certain`; elsewhere it cannot change
+    the rounded count).
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (n, 3)
+        Model units.
+    faces : ndarray of int, shape (m, 3)
+    cells : ndarray of int, shape (c, 3)
+        Grid cells.
+    origin : ndarray, shape (3,)
+        The grid's corner, model units.
+    pitch : float
+        The cells' side, model units.
+    n_sub : int
+        Sub-cubes per side of each cell.
+    cone : (apex, cone faces), optional
+        :func:`~sc_fem.geometry.inside.boundary_cone` of ``(vertices, faces)`` when the caller has it.
+
+    Returns
+    -------
+    ndarray of float, shape (c, n_sub^3)
+        Integer values, sub-cubes in :func:`sub_offsets` order.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    cells = np.asarray(cells, dtype=np.int64).reshape(-1, 3)
+    offs = sub_offsets(n_sub)
+    out = np.zeros((len(cells), len(offs)))
+    if len(f) == 0 or len(cells) == 0:
+        return out
+    apex, cone_f = boundary_cone(v, f) if cone is None else cone
+    closed_v = np.vstack([v, apex])
+    axis = _ray_axis(closed_v, f, cone_f, out.size) if len(cone_f) else 2
+    if axis is None:                         # the cone would crowd the ray-crossing bins: libigl alone
+        pts = origin + pitch * (cells[:, None, :] + offs[None])     # as the callers build them
+        return np.rint(_fast_winding_number(v, f, pts.reshape(-1, 3))).reshape(out.shape)
+    # visit the points ray by ray: the ray's axis fastest within a cell, and cells along it in turn
+    sub = np.moveaxis(np.arange(len(offs)).reshape((n_sub,) * 3), axis, -1).ravel()
+    others = [(axis + 1) % 3, (axis + 2) % 3]
+    by_ray = (np.lexsort((cells[:, axis], cells[:, others[1]], cells[:, others[0]])) if n_sub == 1 and axis != 2
+              else None)                                   # cells in C order already run along z
+    ray_cells = cells if by_ray is None else cells[by_ray]
+    order = [others[0], others[1], axis]                   # a rotation taking the ray's axis to z
+    o = np.asarray(origin, dtype=np.float64)[order]
+    q = (o + pitch * (ray_cells[:, order][:, None, :] + offs[sub][:, order][None])).reshape(-1, 3)   # rotated
+    count = crossing_number(closed_v[:, order], np.vstack([f, cone_f]), q)
+    if len(cone_f):          # one point a cell: libigl's far field is cheaper than the bound
+        near = (~_cone_certain(v, apex, cone_f, origin + pitch * (ray_cells + 0.5), 0.5 * np.sqrt(3) * pitch)
+                if n_sub > 1 else np.ones(len(cells), dtype=bool))
+        at = np.flatnonzero(np.repeat(near, len(offs)))
+        used, local = np.unique(cone_f, return_inverse=True)
+        unrotated = q[at][:, np.argsort(order)]
+        count[at] = np.rint(count[at] - _fast_winding_number(closed_v[used], local.reshape(-1, 3), unrotated))
+    count = count.reshape(len(cells), len(offs))
+    if by_ray is not None:
+        out[by_ray] = count
+    else:
+        out[:, sub] = count
+    return out
