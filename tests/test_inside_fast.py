@@ -199,3 +199,15 @@ def test_columns_of_points_through_vertices_count_alike_in_both_kernels(rng):
     assert len(q) > 15000
     np.testing.assert_array_equal(crossing_number(v, f, q, kernel="numba"),
                                   crossing_number(v, f, q, kernel="numpy", max_pairs=5000))
+
+
+def test_position_ids_are_np_uniques_inverse(rng):
+    """The weld's ids: duplicated vertices, signed zeros, points sharing one or two coordinates."""
+    from sc_fem.geometry.inside import position_ids
+
+    v = np.round(rng.random((3000, 3)) * 4) / 4 - 0.5                       # many repeats, ties in columns
+    v = np.vstack([v, v[:500], [[0.0, -0.0, 0.25], [-0.0, 0.0, 0.25]]])
+    ids = position_ids(v)
+    np.testing.assert_array_equal(ids, np.unique(v, axis=0, return_inverse=True)[1].reshape(-1))
+    assert ids[-1] == ids[-2] and ids.max() + 1 < len(v)
+    assert position_ids(np.zeros((0, 3))).shape == (0,)

@@ -75,8 +75,7 @@ def boundary_cone(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, 
         return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
     used, f = np.unique(f, return_inverse=True)             # weld only the vertices the faces use
     f = f.reshape(-1, 3)
-    _, weld_id = np.unique(v[used], axis=0, return_inverse=True)
-    weld_id = weld_id.reshape(-1)
+    weld_id = position_ids(v[used])
     rep = np.zeros(int(weld_id.max()) + 1, np.int64)
     rep[weld_id[::-1]] = used[::-1]                         # a vertex index for each position
     n = len(rep)
@@ -219,10 +218,25 @@ class MeshParts:
         return self.closed[self.label]
 
 
+def position_ids(points: np.ndarray) -> np.ndarray:
+    """The rank of each point's position among the distinct positions, shape (n,) int64: the inverse
+    of ``np.unique(points, axis=0, return_inverse=True)``, by a lexicographic sort of the columns
+    (several times faster than the row sort ``np.unique`` does, the same numbers)."""
+    p = np.asarray(points, dtype=np.float64)
+    if len(p) == 0:
+        return np.zeros(0, np.int64)
+    p = p.reshape(len(p), -1)
+    order = np.lexsort(p.T[::-1])
+    s = p[order]
+    new = np.r_[True, np.any(s[1:] != s[:-1], axis=1)]
+    ids = np.empty(len(p), np.int64)
+    ids[order] = np.cumsum(new) - 1
+    return ids
+
+
 def weld(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Faces (m, 3) re-indexed so that vertices at the same position share one index."""
-    _, inv = np.unique(np.asarray(vertices), axis=0, return_inverse=True)
-    return inv.reshape(-1)[faces]
+    return position_ids(vertices)[faces]
 
 
 def _part_labels(wfaces: np.ndarray, n_vertices: int) -> np.ndarray:
