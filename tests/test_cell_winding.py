@@ -180,3 +180,22 @@ def test_rim_bounds_compiled_numpy_and_a_loop_agree(rng):
         np.testing.assert_array_equal(np.isinf(grad), np.isinf(grad_o))
         np.testing.assert_allclose(grad[np.isfinite(grad)], grad_o[np.isfinite(grad_o)], rtol=1e-10)
     assert np.isfinite(grad_o).sum() > 100
+
+
+@pytest.mark.parametrize("inside_out", [False, True])
+def test_parts_keep_the_cone_of_their_faces_unless_they_flipped_a_part(inside_out):
+    """:func:`mesh_parts` hands its cone on (the solid fill reuses it): it is the cone of the faces
+    it returns; a leaky part turned outward afterwards (an inside-out scan) leaves none."""
+    from sc_fem.geometry.inside import mesh_parts
+
+    mesh = _leaky_sphere()
+    f = np.asarray(mesh.faces)[:, ::-1] if inside_out else np.asarray(mesh.faces)
+    parts = mesh_parts(mesh.vertices, f)
+    assert parts.closed.all() and not parts.watertight.any()
+    if inside_out:
+        assert parts.cone is None
+        return
+    apex, cone = boundary_cone(np.asarray(mesh.vertices, float), parts.faces)
+    np.testing.assert_array_equal(parts.cone[0], apex)
+    np.testing.assert_array_equal(parts.cone[1], cone)
+    assert len(cone) > 0

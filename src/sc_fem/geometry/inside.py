@@ -196,6 +196,9 @@ class MeshParts:
     watertight : ndarray of bool, shape (k,)
         Parts whose consistently oriented faces close up (every edge used equally often in both
         directions): the divergence theorem holds on them.
+    cone : (apex, cone faces) or None
+        :func:`boundary_cone` of ``(vertices, faces)``, when it was found on these faces (None
+        when parts were flipped after it).
     """
 
     label: np.ndarray
@@ -203,6 +206,7 @@ class MeshParts:
     closure: np.ndarray
     faces: np.ndarray
     watertight: np.ndarray
+    cone: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def n_parts(self) -> int:
@@ -306,7 +310,8 @@ def mesh_parts(vertices: np.ndarray, faces: np.ndarray) -> MeshParts:
     diag = float(np.linalg.norm(vertices.max(0) - vertices.min(0)))
     d = 1e-4 * diag
     centre = tri[pick].mean(axis=1)
-    w = winding_number(vertices, out, np.vstack([centre - d * normal[pick], centre + d * normal[pick]]))
+    cone = boundary_cone(vertices, out)
+    w = winding_number(vertices, out, np.vstack([centre - d * normal[pick], centre + d * normal[pick]]), cone)
     s = w[:len(pick)] + w[len(pick):]
     plab = label[pick]
     signed_closure = np.zeros(k)
@@ -321,5 +326,6 @@ def mesh_parts(vertices: np.ndarray, faces: np.ndarray) -> MeshParts:
     inward = ~tight & closed & (signed_closure < 0)
     if inward.any():
         out[inward[label]] = out[inward[label]][:, ::-1]
+        cone = None
     closure = np.where(tight, 1.0, closure)
-    return MeshParts(label=label, closed=closed, closure=closure, faces=out, watertight=tight)
+    return MeshParts(label=label, closed=closed, closure=closure, faces=out, watertight=tight, cone=cone)

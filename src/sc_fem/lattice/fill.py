@@ -64,7 +64,12 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
     free = np.argwhere(region & ~occupied)
     # closed parts have integer winding numbers: exact ray crossings; leaky ones need the generalized
     leaky_solids = not (parts.watertight | ~solid_part).all()
-    cone = boundary_cone(sv, sf) if leaky_solids else None         # one cone for every call below
+    cone = None                                                     # one cone for every call below
+    if leaky_solids and parts.cone is not None and solid_faces.all():   # the parts' own, on sv's indices
+        apex, cf = parts.cone
+        cone = (apex, np.column_stack([np.searchsorted(used, cf[:, :2]), cf[:, 2] - len(vertices) + len(used)]))
+    elif leaky_solids:
+        cone = boundary_cone(sv, sf)
     no_cone = (np.zeros((0, 3)), np.zeros((0, 3), np.int64))              # closed: ray crossings alone
     w_free = cell_winding(sv, sf, free, origin, pitch, 1, cone if leaky_solids else no_cone)[:, 0]
     interior, w_interior = free[w_free > 0.5], w_free[w_free > 0.5]
