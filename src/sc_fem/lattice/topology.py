@@ -99,11 +99,14 @@ DENSE_KEYS_PER_ITEM = 8
 DENSE_KEYS_MIN = 1 << 22
 """Table entries :func:`unique_keys` allows whatever the number of keys (4 Mi: 32 MiB of indices)."""
 
+DENSE_KEYS_MAX = 1 << 24
+"""Table entries :func:`unique_keys` never exceeds (16 Mi: 128 MiB of indices; a 256^3 grid)."""
+
 
 def unique_keys(keys: np.ndarray, size: int, return_inverse: bool = False):
     """``np.unique(keys, return_inverse=...)`` for integer keys in ``[0, size)``, by marking a table
-    of ``size`` entries (O(n + size), no sort) when it is small enough (:data:`DENSE_KEYS_PER_ITEM`):
-    the same sorted keys and the same inverse.
+    of ``size`` entries (O(n + size), no sort) when it is small enough (:data:`DENSE_KEYS_PER_ITEM`,
+    :data:`DENSE_KEYS_MAX`): the same sorted keys and the same inverse.
 
     Parameters
     ----------
@@ -122,7 +125,7 @@ def unique_keys(keys: np.ndarray, size: int, return_inverse: bool = False):
         With ``return_inverse``: ``uniq[inverse] == keys``.
     """
     keys = np.asarray(keys, dtype=np.int64).ravel()
-    if size > DENSE_KEYS_PER_ITEM * len(keys) + DENSE_KEYS_MIN:
+    if size > min(DENSE_KEYS_PER_ITEM * len(keys) + DENSE_KEYS_MIN, DENSE_KEYS_MAX):
         out = np.unique(keys, return_inverse=return_inverse)
         return (out[0], out[1].reshape(-1).astype(np.int64)) if return_inverse else out
     mark = np.zeros(size, dtype=bool)
