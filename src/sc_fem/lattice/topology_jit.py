@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 
-from .._jit import compiled_parallel, prange
+from .._jit import compiled, compiled_parallel, prange
 
 
 def _cells_py(points, origin, pitch, hi, out):  # pragma: no cover - compiled
@@ -27,8 +27,9 @@ cells = compiled_parallel(_cells_py)
 
 def _mark_py(points, origin, pitch, hi, select, grid):  # pragma: no cover - compiled
     """``grid[cell of points[i]] = True`` for every ``i`` with ``select[i]`` (all when ``select`` is
-    empty), the cell as :func:`_cells_py` finds it; points split over the cores (every write is True)."""
-    for i in prange(points.shape[0]):
+    empty), the cell as :func:`_cells_py` finds it. One core: the scattered writes, not the
+    arithmetic, take the time (1.8 million points in ~13 ms, as fast as on two cores)."""
+    for i in range(points.shape[0]):
         if select.shape[0] and not select[i]:
             continue
         c0 = int(math.floor((points[i, 0] - origin[0]) / pitch))
@@ -39,5 +40,5 @@ def _mark_py(points, origin, pitch, hi, select, grid):  # pragma: no cover - com
              0 if c2 < 0 else (hi[2] if c2 > hi[2] else c2)] = True
 
 
-mark = compiled_parallel(_mark_py)
+mark = compiled(_mark_py)
 """The compiled :func:`_mark_py` (None without numba)."""
