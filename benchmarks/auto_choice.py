@@ -1,7 +1,7 @@
 """The automatic eigensolver choice against what each solver takes, on shapes users bring, in one run.
 
-Usage: python benchmarks/auto_choice.py [--quick | --larger] [--repeat R] [--only NAME ...]
-       python benchmarks/auto_choice.py --from-json out/FILE.json ... [--fit]
+Usage: python benchmarks/auto_choice.py [--quick | --larger | --unseen] [--repeat R] [--only NAME ...]
+       python benchmarks/auto_choice.py --from-json out/FILE.json ... [--loo] [--fit]
 
 Per shape and resolution (free-free, 16 pairs: 10 elastic modes and the 6 rigid ones; the held
 cantilever 6 pairs): the fill analysis of ``K - sigma M`` (:func:`sc_fem.fem.options.fill_analysis`,
@@ -17,7 +17,9 @@ the armchair, a plate, an I-beam, a truss bridge in millimetres, the cable-staye
 parts (the toy truck). Prints a Markdown table, the counts within 1.5x, the repeats' spread and the
 machine's load, writes ``benchmarks/out/auto_choice.json`` (``--out``) and ``auto_choice.png``
 (copied to ``docs/``). ``--from-json`` re-predicts stored runs with the current model, and
-``--fit`` fits LOBPCG's model (:data:`sc_fem.fem.fill.LOBPCG_FILL_MODEL`) to them (:func:`fit`).
+``--fit`` fits LOBPCG's model (:data:`sc_fem.fem.fill.LOBPCG_FILL_MODEL`) to them (:func:`fit`),
+``--loo`` predicts each shape with the iteration constants fitted without it (:func:`leave_one_out`);
+``--unseen`` times seven shapes no fit has used (:func:`unseen_shapes`).
 """
 
 from __future__ import annotations
@@ -66,6 +68,22 @@ def shapes(quick: bool, larger: bool = False):
     bar.apply_translation((2.0, 0.5, 0.5))
     out.append((CANTILEVER, "compact, held", bar, (88, 48), 1.0))       # 139,656 and 24,336 free DOFs
     return [(a, b, c, d[:1] if quick else d[1:] if larger else d, e) for a, b, c, d, e in out]
+
+
+def unseen_shapes():
+    """Shapes no fit of :data:`sc_fem.fem.fill.LOBPCG_FILL_MODEL` has used (``--unseen``), one resolution
+    each: three compact scans (the dragon, a knot, the teapot of 2 parts) and four of slender or
+    thin members (a table, a portal frame, a slatted chair, a channel section)."""
+    import sc_fem
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+    import shapes as sh
+
+    out = [(label, "compact", sc_fem.load_mesh(str(SHARED_MESHES / name)), (r,), 1.0)
+           for name, label, r in (("dragon_lowres.obj", "dragon", 48), ("knot.obj", "knot", 64),
+                                  ("teapot.obj", "teapot", 48)) if (SHARED_MESHES / name).is_file()]
+    return out + [("table", "thin", sh.table(), (64,), 1.0), ("portal frame", "thin", sh.portal_frame(), (96,), 1.0),
+                  ("slatted chair", "thin", sh.slatted_chair(), (64,), 1.0), ("channel", "thin", sh.channel(), (128,), 1.0)]
 
 
 def _timed(fn, info: dict, parts: list) -> float | None:
@@ -178,7 +196,7 @@ def fit(records: list[dict]) -> dict:
        ``beta`` by least squares of log(iterations taken / predicted) over the shapes (``cap`` kept).
 
     Prints each step and returns the fitted constants (also set in the model for the table)."""
-    from scipy.optimize import minimize, nnls
+    from scipy.optimize import nnls
 
     from sc_fem.fem import fill
 
@@ -194,7 +212,26 @@ def fit(records: list[dict]) -> dict:
     print(f"1. set-up {a:.3g} s + {b:.3g} s/DOF; residual {np.ptp(np.log(setup / (a + b * n))):.2f} (log range)")
     print(f"2. one iteration: {np.exp(lc):.3g} s x e x (e / 1e6)^{g:.3f}; per-run ratios "
           f"{np.round(per_it / (np.exp(lc) * e * (e / 1e6) ** g), 2).tolist()}")
-    done = list({(r["shape"], r["res"]): r for r in records if r["lobpcg_iterations"] and r["nnz_l"]}.values())
+    done = _converged(records)
+    x, rms = _fit_iterations(done)
+    print(f"3. iterations: a compact solid's {x[0]:.3g}, q0 {x[1]:.3g}, beta {x[2]:.3g}; "
+          f"rms log(iterations taken / predicted) {rms:.3f} over {len(done)} shapes")
+    return dict(model)
+
+
+def _converged(records: list[dict]) -> list[dict]:
+    """One record per (shape, resolution) whose LOBPCG converged and whose fill is known."""
+    return list({(r["shape"], r["res"]): r for r in records if r["lobpcg_iterations"] and r["nnz_l"]}.values())
+
+
+def _fit_iterations(done: list[dict]) -> tuple[np.ndarray, float]:
+    """Fit the model's three iteration constants (``iterations``, ``q0``, ``beta``; set in the model)
+    to ``done`` by least squares of log(iterations taken / predicted); returns them and the rms."""
+    from scipy.optimize import minimize
+
+    from sc_fem.fem import fill
+
+    model = fill.LOBPCG_FILL_MODEL
     taken = np.array([r["lobpcg_iterations"] for r in done], float)
 
     def err(x):
@@ -204,10 +241,33 @@ def fit(records: list[dict]) -> dict:
 
     x = minimize(err, [model["iterations"], model["q0"], model["beta"]], method="Nelder-Mead",
                  options={"xatol": 1e-3, "fatol": 1e-6}).x
-    err(x)
-    print(f"3. iterations: a compact solid's {x[0]:.3g}, q0 {x[1]:.3g}, beta {x[2]:.3g}; "
-          f"rms log(iterations taken / predicted) {np.sqrt(err(x) / len(done)):.3f} over {len(done)} shapes")
-    return dict(model)
+    return x, float(np.sqrt(err(x) / len(done)))
+
+
+def leave_one_out(records: list[dict]) -> None:
+    """Leave-one-shape-out: LOBPCG's iteration constants refitted without each shape, then that
+    shape's iterations and seconds predicted (the set-up and per-iteration law as stored); prints
+    each run and how many are within 1.5x. The model's constants are restored afterwards."""
+    from sc_fem.fem import fill
+    from sc_fem.fem.options import predicted_seconds
+
+    saved = dict(fill.LOBPCG_FILL_MODEL)
+    done = _converged(records)
+    rows, within = [], 0
+    try:
+        for shape in dict.fromkeys(r["shape"] for r in done):
+            _fit_iterations([r for r in done if r["shape"] != shape])
+            for r in (r for r in done if r["shape"] == shape):
+                its = fill.lobpcg_iterations(_analysis(r))
+                sec = predicted_seconds("lobpcg", r["dofs"], r.get("k", K_PAIRS), _analysis(r))
+                ratio = r["lobpcg"] / sec
+                within += 1 / 1.5 <= ratio <= 1.5
+                rows.append([shape, r["res"], f"{r['lobpcg_iterations']} / {its:.1f}",
+                             f"{r['lobpcg']:.2f} / {sec:.2f} s", f"{ratio:.2f}x"])
+    finally:
+        fill.LOBPCG_FILL_MODEL.update(saved)
+    print_table(["shape", "res", "iterations taken / predicted", "seconds taken / predicted", "ratio"], rows)
+    print(f"leave-one-shape-out: LOBPCG's seconds within 1.5x on {within} of {len(rows)} runs")
 
 
 def _cell(rec: dict, m: str) -> str:
@@ -287,18 +347,24 @@ def main(argv=None) -> int:
     ap.add_argument("--only", nargs="*", help="shape labels to run (default all)")
     ap.add_argument("--from-json", nargs="+", help="print the table and chart of earlier runs' JSON files "
                     "with the current model's predictions (from their stored fill), measure nothing")
+    ap.add_argument("--unseen", action="store_true", help="the shapes no fit has used (unseen_shapes) instead")
+    ap.add_argument("--loo", action="store_true", help="with --from-json: leave-one-shape-out predictions of "
+                    "LOBPCG (the iteration constants refitted without each shape)")
     ap.add_argument("--fit", action="store_true", help="with --from-json: fit LOBPCG's model to those runs "
                     "(print the constants) and show the table with them")
     args = ap.parse_args(argv)
     print(f"uptime: {os.popen('uptime').read().strip()}")
     if args.from_json:
         records = [rec for f in args.from_json for rec in json.loads(Path(f).read_text())]
+        if args.loo:
+            leave_one_out(records)
         if args.fit:
             print("LOBPCG_FILL_MODEL =", {k: float(f"{v:.3g}") for k, v in fit(records).items()})
         records = [repredict(rec) for rec in records]
     else:
         records = [measure(label, kind, mesh, r, scale, args.repeat)
-                   for label, kind, mesh, resolutions, scale in shapes(args.quick, args.larger)
+                   for label, kind, mesh, resolutions, scale in (unseen_shapes() if args.unseen else
+                                                                  shapes(args.quick, args.larger))
                    if not args.only or label in args.only for r in resolutions]
         out_path(args.out).write_text(json.dumps(records, indent=1))
     table(records)
