@@ -25,6 +25,11 @@ CONE_PIECES_BOUNDED = 256
 (holes); past that, it is evaluated at every point."""
 
 
+RIM_PAIRS = 1 << 25
+"""The second bound of :func:`_cone_certain` runs up to this many (cell, cone triangle) pairs (~0.1 s);
+past that (a large hole near most cells), libigl is evaluated wherever the first bound leaves it."""
+
+
 def sub_offsets(n_sub: int) -> np.ndarray:
     """Centres of the ``n_sub^3`` sub-cubes of a unit cube, shape (n_sub^3, 3), z fastest."""
     return (np.stack(np.meshgrid(*[np.arange(n_sub)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5) / n_sub
@@ -88,7 +93,7 @@ def _cone_certain(v: np.ndarray, apex: np.ndarray, cone: np.ndarray, centres: np
         bound = np.sum(np.where(d > 0, area / np.where(d > 0, d, 1.0) ** 2, np.inf), axis=1) / (4 * np.pi)
         certain[s:s + (1 << 16)] = bound < CONE_CERTAIN
     rest = np.flatnonzero(~certain)
-    if len(rest) == 0:
+    if len(rest) == 0 or len(rest) * len(cone) > RIM_PAIRS:
         return certain
     box, grad = _rim_bounds(centres[rest], tri, half_diagonal)
     rest, grad = rest[box > half_diagonal], grad[box > half_diagonal]
