@@ -144,7 +144,10 @@ def _ray_axis(vertices: np.ndarray, faces: np.ndarray, cone: np.ndarray, n_point
     one exceeds :data:`CONE_PAIRS`."""
     tri = vertices[cone]
     ext = tri.max(axis=1) - tri.min(axis=1)                             # (c, 3) cone triangles' boxes
-    box = np.ptp(vertices[np.r_[faces.ravel(), cone.ravel()]], axis=0)
+    used = np.zeros(len(vertices), dtype=bool)
+    used[faces.ravel()] = True
+    used[cone.ravel()] = True
+    box = np.ptp(vertices[used], axis=0)                               # the corners' box
     nb = float(np.clip(np.sqrt(max(len(faces) + len(cone), n_points / 16)), 1, 1024))
     cell = np.maximum(box, 1e-300) / nb
     pairs = [float(np.sum((ext[:, (a + 1) % 3] / cell[(a + 1) % 3] + 1) * (ext[:, (a + 2) % 3] / cell[(a + 2) % 3] + 1)))
