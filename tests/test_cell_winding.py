@@ -199,3 +199,21 @@ def test_parts_keep_the_cone_of_their_faces_unless_they_flipped_a_part(inside_ou
     np.testing.assert_array_equal(parts.cone[0], apex)
     np.testing.assert_array_equal(parts.cone[1], cone)
     assert len(cone) > 0
+
+
+def test_cell_winding_when_the_cone_would_crowd_every_axis_is_libigls_alone(monkeypatch, rng):
+    """With no axis along which the cone's faces stay few (forced here), both winding numbers are
+    libigl's of the faces alone, and agree."""
+    from sc_fem.geometry import inside
+
+    monkeypatch.setattr(inside, "CONE_PAIRS", 0.0)
+    mesh = _leaky_sphere()
+    v, f = np.asarray(mesh.vertices, float), np.asarray(mesh.faces)
+    origin, pitch, dims = _grid(v, 12)
+    apex, cone = boundary_cone(v, f)
+    assert inside._ray_axis(np.vstack([v, apex]), f, cone, 100) is None
+    cells = np.argwhere(np.ones(tuple(dims), bool))
+    pts = origin + pitch * (cells[:, None, :] + sub_offsets(2)[None])
+    ref = np.rint(winding_number(v, f, pts.reshape(-1, 3))).reshape(len(cells), -1)
+    np.testing.assert_array_equal(cell_winding(v, f, cells, origin, pitch, 2), ref)
+    assert ref.max() == 1 and ref.min() == 0
