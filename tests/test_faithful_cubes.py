@@ -471,3 +471,26 @@ def test_valid_moments_leaves_valid_sets_and_repairs_invalid_ones(rng):
     ev = np.linalg.eigvalsh(moment_matrix(out))
     assert np.all(ev[:, 0] >= -1e-9 * ev[:, -1])
     assert np.all(np.abs(out[:5] - bad[:5]).max(axis=1) < np.abs(bad[:5, :1] * FULL - bad[:5]).max(axis=1))
+
+
+def test_valid_moments_with_the_full_cubes_named_as_without(rng):
+    """The voxelizer names its full cubes (``even=``): the rest are checked and repaired as before,
+    and :func:`_full_within_roundoff` finds the same cubes as comparing all 27 moments."""
+    from sc_fem.lattice.moments import FULL, box_moments, valid_moments
+    from sc_fem.lattice.voxelize import _full_within_roundoff
+
+    m = np.vstack([box_moments(rng.random((30, 3)) * 0.5, 0.5), np.tile(FULL, (40, 1))])
+    m[:6, 26] = -0.01                                              # invalid sets among the partial ones
+    m[35:38] += 1e-13 * rng.standard_normal((3, 27))               # full within round-off
+    m[38, 5] += 1e-3                                               # full volume, uneven moments: not full
+    full = _full_within_roundoff(m, np.zeros(3), 1.0, np.array([8, 8, 8]))
+    ref = np.abs(m - FULL).max(axis=1) <= 1e3 * np.finfo(float).eps * 9.0
+    np.testing.assert_array_equal(full, ref)
+    assert full.sum() == 39 and not full[38]
+    m2 = m.copy()
+    m2[full] = FULL
+    a, rep_a = valid_moments(m2)
+    b, rep_b = valid_moments(m2, even=full)
+    np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(rep_a, rep_b)
+    assert rep_a[:6].all() and rep_a.sum() == 6

@@ -158,7 +158,8 @@ def moment_matrix(moments: np.ndarray) -> np.ndarray:
     return np.asarray(moments, dtype=np.float64)[:, _PAIR_MOMENT]
 
 
-def valid_moments(moments: np.ndarray, rtol: float = 1e-10) -> tuple[np.ndarray, np.ndarray]:
+def valid_moments(moments: np.ndarray, rtol: float = 1e-10,
+                  even: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Moments (n, 27) that some region could have: each set whose :func:`moment_matrix` has a
     negative eigenvalue (below ``-rtol`` times its largest) is moved towards the same volume spread
     evenly over the cube (``M_000 * FULL``, always valid) just far enough, by bisection.
@@ -166,6 +167,8 @@ def valid_moments(moments: np.ndarray, rtol: float = 1e-10) -> tuple[np.ndarray,
     Sampled corrections can break validity where exact column moments are reduced by sampled
     overlaps of intersecting parts (a soup of overlapping bars: 8 of 1,472 cubes of a truss at
     resolution 64, whose element matrices came out indefinite and made free-free modes fail).
+
+    ``even``: a mask (n,) of rows the caller knows to be a full cube's (not checked; the others are).
 
     Returns
     -------
@@ -182,8 +185,9 @@ def valid_moments(moments: np.ndarray, rtol: float = 1e-10) -> tuple[np.ndarray,
 
     # a set within round-off of the full cube's (the moment matrix of the whole cube, positive
     # definite with a wide margin) is valid: only the others are checked
-    even_rows = np.all(np.abs(moments - moments[:, :1] * FULL) <= 1e-12 * np.abs(moments[:, :1]), axis=1)
-    check = np.flatnonzero(~even_rows)
+    rows = np.arange(len(moments)) if even is None else np.flatnonzero(~np.asarray(even, dtype=bool))
+    m_r = moments[rows]
+    check = rows[~np.all(np.abs(m_r - m_r[:, :1] * FULL) <= 1e-12 * np.abs(m_r[:, :1]), axis=1)]
     bad = check[invalid(moments[check])]
     if not len(bad):
         return moments, np.zeros(len(moments), dtype=bool)

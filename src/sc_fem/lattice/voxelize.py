@@ -60,7 +60,11 @@ def _full_within_roundoff(moments: np.ndarray, origin, pitch: float, dims) -> np
     40 cubes per metre: 1.3e-11); without this, a third of the cubes of a million-cube solid box
     counted as partly filled and took the slow per-cube integration path."""
     extent = 1.0 + float(np.max(np.abs(origin))) / pitch + float(np.max(dims))
-    return np.abs(moments - FULL).max(axis=1) <= 1e3 * np.finfo(float).eps * extent
+    tol = 1e3 * np.finfo(float).eps * extent
+    full = np.abs(moments[:, 0] - FULL[0]) <= tol          # the volume first: most partial cubes fail there
+    at = np.flatnonzero(full)
+    full[at] = np.abs(moments[at] - FULL).max(axis=1) <= tol
+    return full
 
 
 def voxelize(mesh: Any, options: VoxelOptions | None = None, **fields: Any) -> CubeModel:
@@ -160,7 +164,7 @@ def _voxelize(mesh: Any, opts: VoxelOptions, bar: Any) -> CubeModel:
     fraction = np.clip(volume / pitch**3, 0.0, 1.0)
     full = _full_within_roundoff(moments, origin, pitch, dims)
     moments[full], fraction[full] = FULL, 1.0
-    moments, repaired = valid_moments(moments)           # positive semi-definite element matrices
+    moments, repaired = valid_moments(moments, even=full)   # positive semi-definite element matrices
     cube_rho = cube_mass / (volume * opts.scale**3) if opts.mass is not None else avg["rho"]
 
     info = {"occupancy": opts.occupancy, "repaired_moments": int(repaired.sum()), "fill": opts.fill, "stiffness": opts.stiffness,
