@@ -93,7 +93,7 @@ def test_cone_bound_holds_at_every_point_of_a_certified_cell(name):
     origin, pitch, dims = _grid(v, 24)
     apex, cone = boundary_cone(v, f)
     cells = np.argwhere(np.ones(tuple(dims), bool))
-    sure = _cone_certain(v, apex, cone, origin + pitch * (cells + 0.5), 0.5 * np.sqrt(3) * pitch)
+    sure = _cone_certain(np.vstack([v, apex]), apex, cone, origin + pitch * (cells + 0.5), 0.5 * np.sqrt(3) * pitch)
     assert 0.2 < sure.mean() < 1.0
     t = np.linspace(0.0, 1.0, 5)
     offs = np.stack(np.meshgrid(t, t, t, indexing="ij"), -1).reshape(-1, 3)

@@ -13,7 +13,7 @@ import numpy as np
 
 from . import inside_jit
 from .._jit import choose_kernel
-from .inside import _fast_winding_number, _ray_axis, boundary_cone
+from .inside import _fast_winding_number, _ray_axis, boundary_cone, cone_winding_number
 from .rays import crossing_number
 
 CONE_CERTAIN = 0.4
@@ -63,7 +63,7 @@ def _rim_bounds(centres: np.ndarray, tri: np.ndarray, half_diagonal: float,
     return box, grad
 
 
-def _cone_certain(v: np.ndarray, apex: np.ndarray, cone: np.ndarray, centres: np.ndarray,
+def _cone_certain(closed_v: np.ndarray, apex: np.ndarray, cone: np.ndarray, centres: np.ndarray,
                   half_diagonal: float) -> np.ndarray:
     """Cells (centres (c, 3), model units) in which the cone's winding number is certainly below
     :data:`CONE_CERTAIN` in magnitude, in two steps.
@@ -75,14 +75,14 @@ def _cone_certain(v: np.ndarray, apex: np.ndarray, cone: np.ndarray, centres: np
        number is smooth in the cell): its value at the centre (libigl) plus ``h`` times the bound of
        its gradient of :func:`_rim_bounds`.
 
-    On the bunny at 64 the first step leaves 14 % of the surface cells, the second 3.4 %; the
-    winding number exceeds 0.4 in 1.1 %.
+    ``closed_v``: the mesh's vertices, then the apexes (``apex`` (a, 3)); ``cone`` (c, 3) indexes it.
+    On the bunny at 64 the first step leaves 14 % of the 11,288 cells of its vertices, the second
+    3.4 %; the winding number exceeds 0.4 in 1.1 % (at 64 points a cell).
     """
     if len(apex) > CONE_PIECES_BOUNDED:
         return np.zeros(len(centres), dtype=bool)
-    cv = np.vstack([v, apex])
-    tri = cv[cone]
-    piece = cone[:, 2] - len(v)
+    tri = closed_v[cone]
+    piece = cone[:, 2] - (len(closed_v) - len(apex))
     area = np.bincount(piece, weights=0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]),
                                                             axis=1), minlength=len(apex))
     radius = np.zeros(len(apex))
@@ -97,9 +97,7 @@ def _cone_certain(v: np.ndarray, apex: np.ndarray, cone: np.ndarray, centres: np
         return certain
     box, grad = _rim_bounds(centres[rest], tri, half_diagonal)
     rest, grad = rest[box > half_diagonal], grad[box > half_diagonal]
-    used, local = np.unique(cone, return_inverse=True)
-    w_c = _fast_winding_number(cv[used], local.reshape(-1, 3), centres[rest])
-    certain[rest] = np.abs(w_c) + half_diagonal * grad < CONE_CERTAIN
+    certain[rest] = np.abs(cone_winding_number(closed_v, cone, centres[rest])) + half_diagonal * grad < CONE_CERTAIN
     return certain
 
 
@@ -161,12 +159,10 @@ def cell_winding(vertices: np.ndarray, faces: np.ndarray, cells: np.ndarray, ori
     q = (o + pitch * (ray_cells[:, order][:, None, :] + offs[sub][:, order][None])).reshape(-1, 3)   # rotated
     count = crossing_number(closed_v[:, order], np.vstack([f, cone_f]), q)
     if len(cone_f):          # one point a cell: libigl's far field is cheaper than the bound
-        near = (~_cone_certain(v, apex, cone_f, origin + pitch * (ray_cells + 0.5), 0.5 * np.sqrt(3) * pitch)
+        near = (~_cone_certain(closed_v, apex, cone_f, origin + pitch * (ray_cells + 0.5), 0.5 * np.sqrt(3) * pitch)
                 if n_sub > 1 else np.ones(len(cells), dtype=bool))
         at = np.flatnonzero(np.repeat(near, len(offs)))
-        used, local = np.unique(cone_f, return_inverse=True)
-        unrotated = q[at][:, np.argsort(order)]
-        count[at] = np.rint(count[at] - _fast_winding_number(closed_v[used], local.reshape(-1, 3), unrotated))
+        count[at] = np.rint(count[at] - cone_winding_number(closed_v, cone_f, q[at][:, np.argsort(order)]))
     count = count.reshape(len(cells), len(offs))
     if by_ray is not None:
         out[by_ray] = count

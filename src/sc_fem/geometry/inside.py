@@ -126,9 +126,28 @@ def winding_number(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray,
     if axis is None:                         # the cone would crowd the ray-crossing bins: libigl alone
         return _fast_winding_number(v, f, q)
     order = [(axis + 1) % 3, (axis + 2) % 3, axis]          # a rotation taking the ray's axis to z
+    return crossing_number(closed_v[:, order], np.vstack([f, cone]), q[:, order]) - cone_winding_number(closed_v, cone, q)
+
+
+def cone_winding_number(closed_vertices: np.ndarray, cone: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """libigl's fast winding number (:func:`_fast_winding_number`) of the cone of
+    :func:`boundary_cone` alone, on its own vertices.
+
+    Parameters
+    ----------
+    closed_vertices : ndarray, shape (n + a, 3)
+        The mesh's vertices, then the cone's apexes, model units.
+    cone : ndarray of int, shape (c, 3)
+        The cone's triangles, indices into ``closed_vertices``.
+    points : ndarray, shape (q, 3)
+        Model units.
+
+    Returns
+    -------
+    ndarray, shape (q,)
+    """
     used, local = np.unique(cone, return_inverse=True)
-    return (crossing_number(closed_v[:, order], np.vstack([f, cone]), q[:, order])
-            - _fast_winding_number(closed_v[used], local.reshape(-1, 3), q))
+    return _fast_winding_number(closed_vertices[used], local.reshape(-1, 3), points)
 
 
 CONE_PAIRS = 8.0

@@ -55,8 +55,7 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
     dims = np.array(occupied.shape)
     solid_faces = solid_part[parts.label]
     sf = parts.faces[solid_faces]
-    used = np.unique(sf)
-    sv, sf = vertices[used], np.searchsorted(used, sf)
+    sv = vertices[np.unique(sf)]
     lo = np.clip(np.floor((sv.min(0) - origin) / pitch).astype(np.int64), 0, dims - 1)
     hi = np.clip(np.floor((sv.max(0) - origin) / pitch).astype(np.int64), 0, dims - 1) + 1
     region = np.zeros_like(occupied)
@@ -64,14 +63,10 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
     free = np.argwhere(region & ~occupied)
     # closed parts have integer winding numbers: exact ray crossings; leaky ones need the generalized
     leaky_solids = not (parts.watertight | ~solid_part).all()
-    cone = None                                                     # one cone for every call below
-    if leaky_solids and parts.cone is not None and solid_faces.all():   # the parts' own, on sv's indices
-        apex, cf = parts.cone
-        cone = (apex, np.column_stack([np.searchsorted(used, cf[:, :2]), cf[:, 2] - len(vertices) + len(used)]))
-    elif leaky_solids:
-        cone = boundary_cone(sv, sf)
-    no_cone = (np.zeros((0, 3)), np.zeros((0, 3), np.int64))              # closed: ray crossings alone
-    w_free = cell_winding(sv, sf, free, origin, pitch, 1, cone if leaky_solids else no_cone)[:, 0]
+    # one cone for every call below: the parts' own when every part is solid; closed: crossings alone
+    cone = ((parts.cone if parts.cone is not None and solid_faces.all() else boundary_cone(vertices, sf))
+            if leaky_solids else (np.zeros((0, 3)), np.zeros((0, 3), np.int64)))
+    w_free = cell_winding(vertices, sf, free, origin, pitch, 1, cone)[:, 0]
     interior, w_interior = free[w_free > 0.5], w_free[w_free > 0.5]
 
     tight_part = solid_part & parts.watertight
@@ -131,7 +126,7 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
     if leaky.any():
         bcells = np.argwhere(mark_cells(np.zeros(occupied.shape, dtype=bool), surf.points, origin, pitch, leaky))
         pts = origin + pitch * (bcells[:, None, :] + offs[None]).reshape(-1, 3)
-        inside = cell_winding(sv, sf, bcells, origin, pitch, n_sub, cone).ravel() >= 1   # a leaky solid part: its cone
+        inside = cell_winding(vertices, sf, bcells, origin, pitch, n_sub, cone).ravel() >= 1   # a leaky solid part: its cone
         if tight_part.any():        # not where a watertight part already counted the volume
             tf = parts.faces[tight_part[parts.label]]
             inside[inside] = crossing_number(vertices, tf, pts[inside]) < 0.5
