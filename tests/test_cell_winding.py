@@ -10,6 +10,7 @@ import pytest
 import trimesh
 
 import sc_fem
+import shapes
 from sc_fem._jit import available as numba_available
 from sc_fem.geometry import inside_jit
 from sc_fem.geometry.cellwinding import CONE_CERTAIN, _cone_certain, _rim_bounds, cell_winding, sub_offsets
@@ -47,8 +48,21 @@ def _grid(v: np.ndarray, res: int):
     return grid_for(b, pitch=float((b[1] - b[0]).max()) / res)
 
 
+def _in_mm(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    return trimesh.Trimesh(np.asarray(mesh.vertices) * 1000.0 + [2.0e5, 0.0, -7.0e4], mesh.faces, process=False)
+
+
+def _leaky_soup() -> trimesh.Trimesh:
+    """Two leaky spheres that intersect (a self-intersecting soup with two holes)."""
+    a = _leaky_sphere()
+    b = trimesh.Trimesh(np.asarray(a.vertices) + [0.5, 0.3, 0.1], a.faces, process=False)
+    return trimesh.util.concatenate([a, b])
+
+
 CASES = {"leaky sphere": (_leaky_sphere, 16), "y-up leaky sphere": (lambda: _leaky_sphere(True), 16),
-         "holey box and ball": (_holey_box, 20), "closed sphere": (lambda: trimesh.creation.icosphere(2), 8)}
+         "leaky sphere in mm": (lambda: _in_mm(_leaky_sphere()), 16), "leaky soup": (_leaky_soup, 16),
+         "holey box and ball": (_holey_box, 20), "closed sphere": (lambda: trimesh.creation.icosphere(2), 8),
+         "I-beam": (lambda: shapes.i_beam(), 48), "open sheet": (lambda: shapes.open_sheet(), 16)}
 
 
 @pytest.mark.parametrize("name", sorted(CASES))
@@ -151,6 +165,10 @@ def test_mark_cells_marks_each_selected_points_cell_as_a_loop_does(kernel, rng):
     assert 0 < ref.sum() < ref.size
     all_ = mark_cells(np.zeros(tuple(dims), bool), p, origin, pitch, kernel=kernel)
     assert all_.sum() > ref.sum() - 1 and np.all(all_ >= ref)
+    ref_all = np.zeros(tuple(dims), bool)
+    for i in range(len(p)):                                                  # every point: the oracle
+        ref_all[tuple(voxel_index(p[i:i + 1], origin, pitch, dims, kernel="numpy")[0])] = True
+    np.testing.assert_array_equal(all_, ref_all)
 
 
 @pytest.mark.skipif(not numba_available(), reason="the compiled kernel needs numba (extra 'fast')")

@@ -31,14 +31,8 @@ def node_values(asm, values_of_chunk, chunk: int, pair: np.ndarray) -> np.ndarra
 
     Parameters
     ----------
-    asm : Assembler
-        Its pattern, with whole nodes free or fixed.
-    values_of_chunk : callable
-        ``(s, e) -> (e - s, 576)`` flattened element mass matrices, kg.
-    chunk : int
-        Cubes per chunk.
-    pair : ndarray of int, shape (8, 8)
-        Stencil offset (0..26) of corner ``b`` seen from corner ``a``.
+    asm, values_of_chunk, chunk, pair
+        As :func:`compact_mass` (``asm`` with whole nodes free or fixed).
 
     Returns
     -------
