@@ -311,22 +311,38 @@ def table(records: list[dict]) -> None:
           f"median {np.median(spread) if spread else 0:.0%}, largest {max(spread, default=0):.0%}")
 
 
+def _name_points(ax, points: list[tuple[float, float, str, str]]) -> None:
+    """Label each ``(x, y, text, colour)`` below and right of its point, on a white ground, each
+    label moved down as far as needed to clear the ones above it that it would overlap."""
+    to_pt = 72.0 / ax.figure.dpi
+    placed = []                                               # (left, right, top) of labels, points
+    for x, y, text, colour in sorted(points, key=lambda t: -t[1]):
+        px, py = (ax.transData.transform((x, y)) * to_pt)
+        left, right, top = px + 6, px + 6 + 4.2 * len(text), py - 4
+        for l2, r2, t2 in placed:
+            if left < r2 and l2 < right and top > t2 - 10:
+                top = t2 - 10
+        placed.append((left, right, top))
+        ax.annotate(text, (x, y), fontsize=7, color=colour, xytext=(6, top - py - 6), textcoords="offset points",
+                    bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.85})
+
+
 def chart(records: list[dict]) -> None:
     """Taken against predicted, both methods (and shift-invert by the power law, hollow)."""
     fig, ax = plt.subplots(figsize=(6.5, 5))
+    outside = []
     for key, m, marker, fc, lab in (("shift-invert_predicted", "shift-invert", "o", None, "shift-invert (fill)"),
                                     ("shift-invert_power_law", "shift-invert", "o", "none", "shift-invert (power law, before)"),
                                     ("lobpcg_predicted", "lobpcg", "s", None, "LOBPCG")):
         pts = np.array([(r[key], r[m]) for r in records if r[m] is not None])
         if len(pts):
             ax.loglog(pts[:, 0], pts[:, 1], marker, mfc=fc, color="C1" if m == "lobpcg" else "C0", label=lab)
-        if fc is None:                                        # name the points outside 1.5x
-            for r in records:
-                if r[m] is not None and not 1 / 1.5 <= r[m] / r[key] <= 1.5:
-                    ax.annotate(f"{r['shape']} r{r['res']}", (r[key], r[m]), fontsize=7,
-                                color="C1" if m == "lobpcg" else "C0", xytext=(6, -10), textcoords="offset points",
-                                bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.85})
+        if fc is None:                                        # the points outside 1.5x are named
+            outside += [(r[key], r[m], f"{r['shape']} r{r['res']}", "C1" if m == "lobpcg" else "C0")
+                        for r in records if r[m] is not None and not 1 / 1.5 <= r[m] / r[key] <= 1.5]
     lim = [0.1, 300]
+    ax.set(xlim=(0.07, 700), ylim=(0.04, 700))
+    _name_points(ax, outside)
     ax.loglog(lim, lim, "k-", lw=0.8, label="taken = predicted")
     ax.fill_between(lim, [v / 1.5 for v in lim], [v * 1.5 for v in lim], color="0.88", label="within 1.5x")
     ax.set(xlabel="predicted [s]", ylabel="taken [s] (median)",
