@@ -65,9 +65,14 @@ CASES = {"leaky sphere": (_leaky_sphere, 16), "y-up leaky sphere": (lambda: _lea
          "I-beam": (lambda: shapes.i_beam(), 48), "open sheet": (lambda: shapes.open_sheet(), 16)}
 
 
+KERNELS = ["numpy"] + (["numba"] if numba_available() else [])
+
+
 @pytest.mark.parametrize("name", sorted(CASES))
 @pytest.mark.parametrize("n_sub", [1, 3])
-def test_cell_winding_is_the_rounded_winding_number_point_for_point(name, n_sub, rng):
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_cell_winding_is_the_rounded_winding_number_point_for_point(name, n_sub, kernel, rng):
+    """Both ways of counting (compiled column by column, numpy point by point) on every case."""
     make, res = CASES[name]
     mesh = make()
     v, f = np.asarray(mesh.vertices, float), np.asarray(mesh.faces)
@@ -76,7 +81,7 @@ def test_cell_winding_is_the_rounded_winding_number_point_for_point(name, n_sub,
     cells = cells[rng.permutation(len(cells))[: max(len(cells) // 2, 1)]]      # any cells, any order
     pts = origin + pitch * (cells[:, None, :] + sub_offsets(n_sub)[None])
     ref = np.rint(winding_number(v, f, pts.reshape(-1, 3))).reshape(len(cells), -1)
-    got = cell_winding(v, f, cells, origin, pitch, n_sub)
+    got = cell_winding(v, f, cells, origin, pitch, n_sub, kernel=kernel)
     np.testing.assert_array_equal(got, ref)
     assert set(np.unique(got)) >= {0.0, 1.0}
 
@@ -116,6 +121,27 @@ def test_cone_bound_holds_at_every_point_of_a_certified_cell(name):
     used, local = np.unique(cone, return_inverse=True)
     w = _fast_winding_number(cv[used], local.reshape(-1, 3), pts)
     assert np.abs(w).max() < CONE_CERTAIN
+
+
+@pytest.mark.skipif(not numba_available(), reason="the compiled kernel needs numba (extra 'fast')")
+@pytest.mark.parametrize("n_sub", [1, 2, 4])
+def test_column_crossings_agree_with_numpy_also_past_the_ray_cache_and_outside_the_faces(n_sub, rng):
+    """Cells in columns through a stack of more thin boxes than :data:`inside_jit.RAY_CACHE` holds
+    crossings, columns beside the stack (no face over them) and cells given in any order: the
+    compiled column kernel counts what the numpy path counts, and is 1 inside a box and 0 between."""
+    n_box = inside_jit.RAY_CACHE // 2 + 10
+    boxes = [trimesh.creation.box(bounds=[[0, 0, 2 * i], [1, 1, 2 * i + 1]]) for i in range(n_box)]
+    stack = trimesh.util.concatenate(boxes)
+    v, f = np.asarray(stack.vertices), np.asarray(stack.faces)
+    origin, pitch = np.array([-0.2, -0.2, -0.45]), 0.5      # cells of half a box, no point on a face
+    cells = np.argwhere(np.ones((4, 3, 4 * n_box + 2), bool))          # x = 3: beside the stack
+    cells = cells[rng.permutation(len(cells))]
+    got = cell_winding(v, f, cells, origin, pitch, n_sub, kernel="numba")
+    np.testing.assert_array_equal(got, cell_winding(v, f, cells, origin, pitch, n_sub, kernel="numpy"))
+    pts = origin + pitch * (cells[:, None, :] + sub_offsets(n_sub)[None])
+    in_box = np.all((pts[..., :2] > 0) & (pts[..., :2] < 1), axis=-1) & (pts[..., 2] > 0) \
+        & (np.floor(pts[..., 2]) % 2 == 0) & (pts[..., 2] < 2 * n_box)
+    np.testing.assert_array_equal(got, in_box.astype(float))
 
 
 @pytest.mark.skipif(not numba_available(), reason="the compiled kernel needs numba (extra 'fast')")

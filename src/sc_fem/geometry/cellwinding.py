@@ -14,7 +14,7 @@ import numpy as np
 from . import inside_jit
 from .._jit import choose_kernel
 from .inside import _fast_winding_number, _ray_axis, boundary_cone, cone_winding_number
-from .rays import crossing_number
+from .rays import binned_faces, crossing_number
 
 CONE_CERTAIN = 0.4
 """:func:`cell_winding` skips the cone's winding number in a cell where a bound says it is below this
@@ -103,7 +103,8 @@ def _cone_certain(closed_v: np.ndarray, apex: np.ndarray, cone: np.ndarray, cent
 
 
 def cell_winding(vertices: np.ndarray, faces: np.ndarray, cells: np.ndarray, origin: np.ndarray, pitch: float,
-                 n_sub: int = 1, cone: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+                 n_sub: int = 1, cone: tuple[np.ndarray, np.ndarray] | None = None,
+                 kernel: str = "auto") -> np.ndarray:
     """The rounded generalized winding number at the sub-cube centres of grid cells.
 
     Equal to ``np.rint(winding_number(vertices, faces, points, cone))``
@@ -130,6 +131,9 @@ def cell_winding(vertices: np.ndarray, faces: np.ndarray, cells: np.ndarray, ori
         Sub-cubes per side of each cell.
     cone : (apex, cone faces), optional
         :func:`~sc_fem.geometry.inside.boundary_cone` of ``(vertices, faces)`` when the caller has it.
+    kernel : {"auto", "numba", "numpy"}
+        The crossings counted column by column by a compiled kernel (with numba), or every point
+        built and counted by :func:`~sc_fem.geometry.rays.crossing_number`; the same counts.
 
     Returns
     -------
@@ -149,24 +153,45 @@ def cell_winding(vertices: np.ndarray, faces: np.ndarray, cells: np.ndarray, ori
     if axis is None:                         # the cone would crowd the ray-crossing bins: libigl alone
         pts = origin + pitch * (cells[:, None, :] + offs[None])     # as the callers build them
         return np.rint(_fast_winding_number(v, f, pts.reshape(-1, 3))).reshape(out.shape)
-    # visit the points ray by ray: the ray's axis fastest within a cell, and cells along it in turn
-    sub = np.moveaxis(np.arange(len(offs)).reshape((n_sub,) * 3), axis, -1).ravel()
-    others = [(axis + 1) % 3, (axis + 2) % 3]
-    by_ray = (np.lexsort((cells[:, axis], cells[:, others[1]], cells[:, others[0]])) if n_sub == 1 and axis != 2
-              else None)                                   # cells in C order already run along z
-    ray_cells = cells if by_ray is None else cells[by_ray]
-    order = [others[0], others[1], axis]                   # a rotation taking the ray's axis to z
-    o = np.asarray(origin, dtype=np.float64)[order]
-    q = (o + pitch * (ray_cells[:, order][:, None, :] + offs[sub][:, order][None])).reshape(-1, 3)   # rotated
-    count = crossing_number(closed_v[:, order], np.vstack([f, cone_f]), q)
+    order = [(axis + 1) % 3, (axis + 2) % 3, axis]          # a rotation taking the ray's axis to z
+    counter = _column_count if choose_kernel(kernel) == "numba" else _point_count
+    counter(closed_v[:, order], np.vstack([f, cone_f]), cells[:, order], np.asarray(origin, dtype=np.float64)[order],
+            pitch, n_sub, np.arange(len(offs)).reshape((n_sub,) * 3).transpose(order), out)
     if len(cone_f):          # one point a cell: libigl's far field is cheaper than the bound
-        near = (~_cone_certain(closed_v, apex, cone_f, origin + pitch * (ray_cells + 0.5), 0.5 * np.sqrt(3) * pitch)
-                if n_sub > 1 else np.ones(len(cells), dtype=bool))
-        at = np.flatnonzero(np.repeat(near, len(offs)))
-        count[at] = np.rint(count[at] - cone_winding_number(closed_v, cone_f, q[at][:, np.argsort(order)]))
-    count = count.reshape(len(cells), len(offs))
-    if by_ray is not None:
-        out[by_ray] = count
-    else:
-        out[:, sub] = count
+        near = np.flatnonzero(~_cone_certain(closed_v, apex, cone_f, origin + pitch * (cells + 0.5),
+                                             0.5 * np.sqrt(3) * pitch) if n_sub > 1 else np.ones(len(cells), bool))
+        pts = origin + pitch * (cells[near][:, None, :] + offs[None])
+        out[near] = np.rint(out[near] - cone_winding_number(closed_v, cone_f, pts.reshape(-1, 3)).reshape(len(near), -1))
     return out
+
+
+def _column_count(v: np.ndarray, faces: np.ndarray, cells: np.ndarray, o: np.ndarray, pitch: float, n_sub: int,
+                  sub_index: np.ndarray, out: np.ndarray) -> None:
+    """The signed ray crossings at the sub-cube centres of ``cells`` into ``out`` (c, n_sub^3), the
+    compiled way (:data:`sc_fem.geometry.inside_jit.column_crossings`): the cells grouped into
+    columns along the ray, each ray's crossings found once for its column. ``v``, ``cells`` and
+    ``o`` are rotated so that the rays run along z; ``sub_index[a, b, k]`` is the column of ``out``
+    of the sub-cube ``(a, b, k)`` in that frame."""
+    binned = binned_faces(v, faces, out.size)
+    if binned is None:
+        return
+    tri, lo, hi, size, nb = binned
+    start, bin_face = inside_jit.bin_faces(tri, lo, size, nb)
+    base = cells[:, :2].min(axis=0)
+    span = cells[:, :2].max(axis=0) - base + 1
+    perm, col_start = inside_jit.columns((cells[:, 0] - base[0]) * span[1] + cells[:, 1] - base[1], int(span.prod()))
+    inside_jit.column_crossings(cells, col_start, perm, o, float(pitch), (np.arange(n_sub) + 0.5) / n_sub,
+                                np.ascontiguousarray(sub_index), tri, lo, hi, size, nb, start, bin_face, out)
+
+
+def _point_count(v: np.ndarray, faces: np.ndarray, cells: np.ndarray, o: np.ndarray, pitch: float, n_sub: int,
+                 sub_index: np.ndarray, out: np.ndarray) -> None:
+    """:func:`_column_count` the numpy way: every point built (ray's axis fastest within a cell, the
+    cells of one ray in turn when there is one point a cell) and counted by
+    :func:`~sc_fem.geometry.rays.crossing_number`."""
+    sub = sub_index.ravel()                                # rotated sub-cubes, the ray's axis fastest
+    by_ray = np.lexsort((cells[:, 2], cells[:, 1], cells[:, 0])) if n_sub == 1 else np.arange(len(cells))
+    offs = sub_offsets(n_sub)                              # rotated offsets: the same (i + 1/2) / n_sub
+    q = (o + pitch * (cells[by_ray][:, None, :] + offs[None])).reshape(-1, 3)
+    count = crossing_number(v, faces, q).reshape(len(cells), len(offs))
+    out[np.ix_(by_ray, sub)] = count

@@ -112,6 +112,94 @@ crossings = compiled_parallel(_crossings_py)
 """The compiled :func:`_crossings_py`, its points split over the cores (None without numba)."""
 
 
+def _column_crossings_py(cells, col_start, perm, o, pitch, sub, sub_index, tri, lo, hi, size, nb, start,
+                         bin_face, out):  # pragma: no cover - compiled
+    """:func:`_crossings_py` at the sub-cube centres of grid cells, visited column by column: the
+    cells ``cells`` (c, 3) int (rotated: the ray along the last axis) grouped into columns by
+    ``perm`` (c,) and ``col_start`` (columns + 1,); the point of cell ``i`` and sub-cube
+    ``(a, b, k)`` is ``o + pitch * (cells[i] + (sub[a], sub[b], sub[k]))``, as numpy builds it,
+    and its count goes to ``out[i, sub_index[a, b, k]]`` (``out`` zeroed). Each of a column's
+    ``n_sub^2`` rays finds its crossings once for all the column's cells (a ray crossing more than
+    :data:`RAY_CACHE` faces: point by point), so a column of cells costs about one cell."""
+    n_sub = sub.shape[0]
+    for c in prange(col_start.shape[0] - 1):
+        zs = np.empty(RAY_CACHE)
+        tops = np.empty(RAY_CACHE)
+        signs = np.empty(RAY_CACHE)
+        first = perm[col_start[c]]
+        for a in range(n_sub):
+            px = o[0] + pitch * (cells[first, 0] + sub[a])
+            fx = (px - lo[0]) / size[0]
+            for b_ in range(n_sub):
+                py = o[1] + pitch * (cells[first, 1] + sub[b_])
+                fy = (py - lo[1]) / size[1]
+                if fx < 0 or fy < 0 or px > hi[0] or py > hi[1]:
+                    continue
+                b = min(int(fx), nb - 1) * nb + min(int(fy), nb - 1)   # x = hi may round to bin nb
+                cached = 0
+                for k in range(start[b], start[b + 1]):
+                    t = tri[bin_face[k]]
+                    z, s = _face_under(t, px, py)
+                    if s != 0:
+                        if cached == RAY_CACHE:
+                            cached = -1
+                            break
+                        zs[cached], tops[cached], signs[cached] = z, max(t[0, 2], t[1, 2], t[2, 2]), s
+                        cached += 1
+                for r in range(col_start[c], col_start[c + 1]):
+                    i = perm[r]
+                    for kz in range(n_sub):
+                        pz = o[2] + pitch * (cells[i, 2] + sub[kz])
+                        acc = 0.0
+                        if cached >= 0:
+                            for j in range(cached):
+                                if tops[j] > pz and zs[j] > pz:
+                                    acc += signs[j]
+                        else:
+                            for k in range(start[b], start[b + 1]):
+                                t = tri[bin_face[k]]
+                                if max(t[0, 2], t[1, 2], t[2, 2]) > pz:
+                                    z, s = _face_under(t, px, py)
+                                    if s != 0 and z > pz:
+                                        acc += s
+                        out[i, sub_index[a, b_, kz]] = acc
+
+
+column_crossings = compiled_parallel(_column_crossings_py)
+"""The compiled :func:`_column_crossings_py`, its columns split over the cores (None without numba)."""
+
+
+def _columns_py(key, n_keys):  # pragma: no cover - compiled
+    """Rows grouped by ``key`` (n,) int in ``[0, n_keys)`` (a counting sort, stable): the rows ``perm``
+    (n,) and, for the keys that occur, where their rows start in it, ``col_start`` (columns + 1,)."""
+    count = np.zeros(n_keys + 1, np.int64)
+    for i in range(key.shape[0]):
+        count[key[i] + 1] += 1
+    fill = np.cumsum(count)
+    perm = np.empty(key.shape[0], np.int64)
+    for i in range(key.shape[0]):
+        perm[fill[key[i]]] = i
+        fill[key[i]] += 1
+    n_cols = 0
+    for k in range(n_keys):
+        if count[k + 1] > 0:
+            n_cols += 1
+    col_start = np.empty(n_cols + 1, np.int64)
+    col_start[0] = 0
+    j = 0
+    acc = 0
+    for k in range(n_keys):
+        if count[k + 1] > 0:
+            acc += count[k + 1]
+            j += 1
+            col_start[j] = acc
+    return perm, col_start
+
+
+columns = compiled(_columns_py)
+"""The compiled :func:`_columns_py` (None without numba)."""
+
+
 def _bin_faces_py(tri, lo, size, nb):  # pragma: no cover - compiled
     """(bin, face) pairs of every face's xy box on the ``nb x nb`` grid of cells ``size`` from ``lo``,
     grouped by bin (bin ``ix * nb + iy``), faces ascending within a bin: ``start`` (nb^2 + 1,), ``bin_face``."""

@@ -66,20 +66,12 @@ def crossing_number(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray,
         Integer winding numbers (1 inside an outward-oriented closed surface, 0 outside, 2 where
         two such surfaces overlap).
     """
-    v = np.asarray(vertices, dtype=np.float64)
     q = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    tri = v[np.asarray(faces, dtype=np.int64)]
     out = np.zeros(len(q))
-    if len(tri) == 0 or len(q) == 0:
+    binned = binned_faces(vertices, faces, len(q))
+    if binned is None or len(q) == 0:
         return out
-    e1, e2 = tri[:, 1, :2] - tri[:, 0, :2], tri[:, 2, :2] - tri[:, 0, :2]
-    tri = tri[e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] != 0]    # faces seen edge-on hold no point
-    if len(tri) == 0:
-        return out
-    xy = tri[:, :, :2].reshape(-1, 2)
-    lo, hi = xy.min(axis=0), xy.max(axis=0)
-    nb = int(np.clip(np.sqrt(max(len(tri), len(q) / 16)), 1, 1024))
-    size = np.maximum(hi - lo, 1e-300) / nb
+    tri, lo, hi, size, nb = binned
     if choose_kernel(kernel) == "numba":
         start, bin_face = inside_jit.bin_faces(tri, lo, size, nb)
         inside_jit.crossings(q, tri, lo, hi, size, nb, start, bin_face, out)
@@ -111,6 +103,26 @@ def crossing_number(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray,
         out += np.bincount(pt[above], weights=sign[above], minlength=len(q))
         s = e
     return out
+
+
+def binned_faces(vertices: np.ndarray, faces: np.ndarray,
+                 n_points: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int] | None:
+    """The faces :func:`crossing_number` tests and the xy grid it bins them on, for ``n_points``
+    query points: the faces' corners ``tri`` (m, 3, 3) (those seen edge-on dropped: they hold no
+    point), the xy box ``lo``, ``hi`` (2,), the bins' ``size`` (2,) and their number per side ``nb``
+    (about one face, or 16 points, a bin); None when no face is left."""
+    v = np.asarray(vertices, dtype=np.float64)
+    tri = v[np.asarray(faces, dtype=np.int64).reshape(-1, 3)]
+    if len(tri) == 0:
+        return None
+    e1, e2 = tri[:, 1, :2] - tri[:, 0, :2], tri[:, 2, :2] - tri[:, 0, :2]
+    tri = tri[e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] != 0]    # faces seen edge-on hold no point
+    if len(tri) == 0:
+        return None
+    xy = tri[:, :, :2].reshape(-1, 2)
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    nb = int(np.clip(np.sqrt(max(len(tri), n_points / 16)), 1, 1024))
+    return tri, lo, hi, np.maximum(hi - lo, 1e-300) / nb, nb
 
 
 def _bin_faces(tri: np.ndarray, lo: np.ndarray, size: np.ndarray, nb: int) -> tuple[np.ndarray, np.ndarray]:
