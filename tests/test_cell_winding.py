@@ -245,6 +245,25 @@ def test_parts_keep_the_cone_of_their_faces_unless_they_flipped_a_part(inside_ou
     assert len(cone) > 0
 
 
+def test_parts_cone_after_turning_inside_out_closed_parts_is_that_of_the_faces_returned():
+    """Closed parts given inside out are turned outward before the cone is taken: with a leaky
+    sphere, two inside-out closed boxes (one touching the sphere, unwelded duplicate vertices) and
+    a vertex no face uses, the parts' cone is :func:`boundary_cone` of the faces returned."""
+    from sc_fem.geometry.inside import mesh_parts
+
+    sphere = _leaky_sphere()
+    boxes = [trimesh.creation.box(bounds=b) for b in ([[3.5, -1.2, 1.5], [4.5, -0.5, 2.5]], [[0, 0, 0], [1, 1, 1]])]
+    parts_in = [sphere] + [trimesh.Trimesh(b.vertices, b.faces[:, ::-1], process=False) for b in boxes]
+    mesh = trimesh.util.concatenate(parts_in)
+    v = np.vstack([mesh.vertices, [[9.0, 9.0, 9.0]]])
+    parts = mesh_parts(v, np.asarray(mesh.faces))
+    assert parts.watertight.sum() == 2 and not np.array_equal(parts.faces, mesh.faces)
+    apex, cone = boundary_cone(v, parts.faces)
+    assert len(cone) > 0
+    np.testing.assert_array_equal(parts.cone[0], apex)
+    np.testing.assert_array_equal(parts.cone[1], cone)
+
+
 def test_cell_winding_when_the_cone_would_crowd_every_axis_is_libigls_alone(monkeypatch, rng):
     """With no axis along which the cone's faces stay few (forced here), both winding numbers are
     libigl's of the faces alone, and agree."""

@@ -9,7 +9,7 @@ import trimesh
 
 import sc_fem
 from conftest import SHARED_MESHES
-from sc_fem.geometry.inside import _closed, boundary_cone, weld, winding_number
+from sc_fem.geometry.inside import _closed, _edge_balance, boundary_cone, position_ids, winding_number
 
 igl = pytest.importorskip("igl")
 
@@ -77,9 +77,9 @@ def test_the_cone_closes_any_soup(case):
     assert len(cone) > 0
     allv = np.vstack([v, apex])
     allf = np.vstack([f, cone])
-    wf = weld(allv, allf)
-    assert _closed(wf, np.zeros(len(allf), np.int64), 1)[0]
-    assert not _closed(weld(v, f), np.zeros(len(f), np.int64), 1)[0]
+    wf = position_ids(allv)[allf]
+    assert _closed(*_edge_balance(wf)[1:], np.zeros(len(allf), np.int64), 1)[0]
+    assert not _closed(*_edge_balance(position_ids(v)[f])[1:], np.zeros(len(f), np.int64), 1)[0]
     # a loop oracle for the number of cone triangles: the open edges, counted one by one
     net: dict = {}
     for a, b in wf[: len(f)][:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2).tolist():
@@ -170,3 +170,33 @@ def test_millimetres_off_origin_and_y_up_change_nothing(case, rng):
                            resolution=16, scale=1e-3)
     assert m_mm.n_cubes == m.n_cubes
     np.testing.assert_allclose(m_mm.mass.sum(), m.mass.sum(), rtol=1e-6)
+
+
+def test_part_labels_match_a_union_find_loop_numbered_by_first_face(rng):
+    """Parts through shared (welded) vertices, numbered in the order of their first face: a
+    union-find over the faces one by one is the oracle (shuffled faces of three boxes, two of them
+    sharing a corner position through duplicate vertices, a loose triangle and an unused vertex)."""
+    from sc_fem.geometry.inside import _part_labels, _weld_used
+
+    boxes = [trimesh.creation.box(bounds=b) for b in ([[0, 0, 0], [1, 1, 1]], [[1, 1, 1], [2, 2, 2]],
+                                                       [[5, 0, 0], [6, 1, 1]])]
+    tri = trimesh.Trimesh([[9, 9, 9], [9, 10, 9], [10, 9, 9]], [[0, 1, 2]])
+    mesh = trimesh.util.concatenate(boxes + [tri])
+    v = np.vstack([mesh.vertices, [[-3.0, -3.0, -3.0]]])
+    f = np.asarray(mesh.faces)[rng.permutation(len(mesh.faces))]
+    wf, rep = _weld_used(v, f)
+    got = _part_labels(wf, len(rep))
+    parent = list(range(len(rep)))
+
+    def root(i):
+        while parent[i] != i:
+            i = parent[i]
+        return i
+
+    for a, b, c in wf.tolist():
+        for x, y in ((a, b), (b, c)):
+            parent[root(x)] = root(y)
+    first: dict = {}
+    ref = [first.setdefault(root(a), len(first)) for a in wf[:, 0].tolist()]
+    np.testing.assert_array_equal(got, ref)
+    assert got.max() == 2          # the two corner-sharing boxes are one part

@@ -73,13 +73,28 @@ def boundary_cone(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, 
     f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     if len(f) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
-    used, f = np.unique(f, return_inverse=True)             # weld only the vertices the faces use
-    f = f.reshape(-1, 3)
-    weld_id = position_ids(v[used])
-    rep = np.zeros(int(weld_id.max()) + 1, np.int64)
-    rep[weld_id[::-1]] = used[::-1]                         # a vertex index for each position
+    wfaces, rep = _weld_used(v, f)
+    key, _, net = _edge_balance(wfaces)
+    return _cone(v, rep, key, net)
+
+
+def _weld_used(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The faces (m, 3) over welded ids of the vertices they use (ranks of their distinct positions,
+    :func:`position_ids` of the used vertices), and a vertex for each id (the lowest index), (p,)."""
+    used = np.zeros(len(vertices), dtype=bool)
+    used[faces.ravel()] = True
+    used = np.flatnonzero(used)
+    weld_id = np.zeros(len(vertices), np.int64)
+    weld_id[used] = position_ids(vertices[used])
+    rep = np.zeros(int(weld_id[used].max()) + 1, np.int64)
+    rep[weld_id[used][::-1]] = used[::-1]                  # a vertex index for each position
+    return weld_id[faces], rep
+
+
+def _cone(v: np.ndarray, rep: np.ndarray, key: np.ndarray, net: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`boundary_cone` from the faces' welded edges (``key``, ``net`` of :func:`_edge_balance`,
+    over ids with the vertices ``rep`` of :func:`_weld_used`)."""
     n = len(rep)
-    key, _, net = _edge_balance(weld_id[f])
     open_ = np.flatnonzero(net)
     if len(open_) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
@@ -260,25 +275,23 @@ def position_ids(points: np.ndarray) -> np.ndarray:
     return ids
 
 
-def weld(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Faces (m, 3) re-indexed so that vertices at the same position share one index."""
-    return position_ids(vertices)[faces]
-
-
 def _part_labels(wfaces: np.ndarray, n_vertices: int) -> np.ndarray:
-    m = len(wfaces)
-    rows = np.repeat(np.arange(m), 3)
-    inc = sparse.csr_matrix((np.ones(3 * m), (rows, wfaces.ravel())), shape=(m, n_vertices))
-    graph = sparse.bmat([[None, inc], [inc.T, None]]).tocsr()
-    _, lab = csgraph.connected_components(graph, directed=False)
-    _, label = np.unique(lab[:m], return_inverse=True)
-    return label.reshape(-1)
+    """The part (connected component through shared welded vertices) of each face (m,), parts
+    numbered in the order of their first face: components of the graph of the faces' sides 01 and
+    12 over the ``n_vertices`` welded ids, read at each face's first vertex."""
+    g = sparse.csr_matrix((np.ones(2 * len(wfaces)), (wfaces[:, :2].ravel(), wfaces[:, 1:].ravel())),
+                          shape=(n_vertices, n_vertices))
+    _, vertex_part = csgraph.connected_components(g, directed=False)
+    _, first, part = np.unique(vertex_part[wfaces[:, 0]], return_index=True, return_inverse=True)
+    rank = np.empty(len(first), np.int64)
+    rank[np.argsort(first)] = np.arange(len(first))
+    return rank[part.reshape(-1)]
 
 
 def _edge_balance(wfaces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The edges of faces (m, 3) over welded vertex ids: ``key`` (e,) of each undirected edge
     ``lo * n + hi``, ``inv`` (3m,) the edge of each face side (sides 01, 12, 20 of face ``i`` at
-    ``i, m + i, 2m + i`` -- order of ``ravel`` on the stacked sides), and ``net`` (e,) int: uses
+    ``3i, 3i + 1, 3i + 2``), and ``net`` (e,) int: uses
     from ``lo`` to ``hi`` less uses from ``hi`` to ``lo`` (0 on every edge of a closed surface)."""
     a, b = wfaces.ravel(), wfaces[:, [1, 2, 0]].ravel()
     n = int(wfaces.max()) + 1 if len(wfaces) else 1
@@ -287,13 +300,13 @@ def _edge_balance(wfaces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return key, inv, np.rint(np.bincount(inv, weights=np.where(a < b, 1.0, -1.0))).astype(np.int64)
 
 
-def _closed(wfaces: np.ndarray, label: np.ndarray, n_parts: int) -> np.ndarray:
+def _closed(inv: np.ndarray, net: np.ndarray, label: np.ndarray, n_parts: int) -> np.ndarray:
     """Parts whose consistently oriented faces close up: every edge (between welded vertices) is
     used as often in one direction as in the other (the boundary of the 2-chain is zero, which is
-    what the divergence theorem needs; edges shared by four faces of touching boxes are fine)."""
-    _, inv, net = _edge_balance(wfaces)
+    what the divergence theorem needs; edges shared by four faces of touching boxes are fine).
+    ``inv``, ``net``: :func:`_edge_balance` of the faces; ``label`` (m,) their parts."""
     open_edge = net[inv] != 0
-    return np.bincount(label[np.repeat(np.arange(len(wfaces)), 3)[open_edge]], minlength=n_parts) == 0
+    return np.bincount(np.repeat(label, 3)[open_edge], minlength=n_parts) == 0
 
 
 def mesh_parts(vertices: np.ndarray, faces: np.ndarray) -> MeshParts:
@@ -310,15 +323,16 @@ def mesh_parts(vertices: np.ndarray, faces: np.ndarray) -> MeshParts:
     m = len(faces)
     if m == 0:
         return MeshParts(np.zeros(0, np.int64), np.zeros(0, bool), np.zeros(0), faces, np.zeros(0, bool))
-    wfaces = weld(vertices, faces)
-    label = _part_labels(wfaces, len(vertices))
+    wfaces, rep = _weld_used(vertices, faces)
+    label = _part_labels(wfaces, len(rep))
     k = int(label.max()) + 1
     tri = vertices[faces]
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     area2 = np.linalg.norm(cross, axis=1)
     # orient watertight parts outward (signed volume > 0)
     signed = np.bincount(label, weights=np.einsum("ij,ij->i", tri[:, 0], cross), minlength=k)
-    tight = _closed(wfaces, label, k)
+    key, inv, net = _edge_balance(wfaces)
+    tight = _closed(inv, net, label, k)
     flip = tight & (signed < 0)
     out = faces.copy()
     out[flip[label]] = out[flip[label]][:, ::-1]
@@ -332,7 +346,8 @@ def mesh_parts(vertices: np.ndarray, faces: np.ndarray) -> MeshParts:
     diag = float(np.linalg.norm(vertices.max(0) - vertices.min(0)))
     d = 1e-4 * diag
     centre = tri[pick].mean(axis=1)
-    cone = boundary_cone(vertices, out)
+    # boundary_cone(vertices, out): parts share no edge, and those turned over are closed (net 0 either way)
+    cone = _cone(vertices, rep, key, net)
     w = winding_number(vertices, out, np.vstack([centre - d * normal[pick], centre + d * normal[pick]]), cone)
     s = w[:len(pick)] + w[len(pick):]
     plab = label[pick]
