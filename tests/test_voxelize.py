@@ -125,6 +125,31 @@ def test_bad_material(kw, match):
 
 
 # ---------------------------------------------------------------- fill and components
+def test_solid_fill_names_the_cells_its_samples_lie_in():
+    """The cells :func:`sc_fem.lattice.fill.solid_fill` returns are those its samples hash to (the
+    voxelizer marks them instead of hashing every sample again): closed boxes that overlap, a
+    leaky sphere, in millimetres 3 m off the origin."""
+    from sc_fem.geometry.sampling import surface_grid_samples
+    from sc_fem.lattice.fill import solid_fill
+    from sc_fem.lattice.mass import _occupied_cells, _solid_parts
+    from sc_fem.lattice.topology import unique_cells, voxel_index
+
+    s = trimesh.creation.icosphere(3, radius=0.4)
+    leaky = trimesh.Trimesh(s.vertices + [1.5, 0.5, 0.5], s.faces[s.face_normals[:, 2] < 0.7], process=False)
+    a = trimesh.creation.box(bounds=[[0, 0, 0], [1, 1, 1]])
+    b = trimesh.creation.box(bounds=[[0.5, 0.3, 0.2], [1.2, 0.9, 0.8]])
+    mesh = trimesh.util.concatenate([a, b, leaky])
+    v, f = np.asarray(mesh.vertices) * 1000.0 + 3000.0, np.asarray(mesh.faces)
+    origin, pitch, dims = grid_for(np.array([v.min(0), v.max(0)]), pitch=float(np.ptp(v, axis=0).max()) / 20)
+    surf = surface_grid_samples(v, f, 0.25 * pitch)
+    parts, solid_part = _solid_parts(v, f, "auto")
+    assert solid_part.all() and not parts.watertight.all()
+    occupied, _ = _occupied_cells(surf, v, f, (origin, pitch, dims), "sampled")
+    samples, cells = solid_fill(occupied, v, parts, solid_part, surf, origin, pitch, 4)
+    assert len(samples) > len(cells) > 0
+    np.testing.assert_array_equal(unique_cells(cells, dims), unique_cells(voxel_index(samples.points, origin, pitch, dims), dims))
+
+
 def test_solid_fill_of_closed_and_leaky_shells():
     closed = sc_fem.voxelize(box_mesh([1, 1, 1]), resolution=10, fill="solid")
     assert closed.n_cubes == 1000

@@ -119,8 +119,9 @@ def binned_faces(vertices: np.ndarray, faces: np.ndarray,
     tri = tri[e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] != 0]    # faces seen edge-on hold no point
     if len(tri) == 0:
         return None
-    xy = tri[:, :, :2].reshape(-1, 2)
-    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    # per coordinate: a reduction over axis 0 of the (3m, 2) corners is ~10x slower (strided)
+    lo = np.array([tri[:, :, 0].min(), tri[:, :, 1].min()])
+    hi = np.array([tri[:, :, 0].max(), tri[:, :, 1].max()])
     nb = int(np.clip(np.sqrt(max(len(tri), n_points / 16)), 1, 1024))
     return tri, lo, hi, np.maximum(hi - lo, 1e-300) / nb, nb
 

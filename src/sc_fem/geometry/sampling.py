@@ -2,7 +2,8 @@
 
 Two surface samplers:
 
-* :func:`surface_grid_samples` (default): a stratified grid on every triangle (Duffy map of the
+* :func:`surface_grid_samples` (default; :func:`surface_grid` sets it up, so that its size is
+  known first): a stratified grid on every triangle (Duffy map of the
   unit square, apex at the vertex opposite the shortest edge) with spacing at most ``spacing``
   in model units. Every point of every triangle lies within ``spacing`` of a sample, which is
   what makes the coverage guarantee of :func:`sc_fem.voxelize` provable. Sample weights are
@@ -69,14 +70,13 @@ class Samples:
 
 
 def _apex_frame(vertices: np.ndarray, faces: np.ndarray):
-    tri = vertices[faces]                                             # (F, 3, 3)
-    opp = np.linalg.norm(tri[:, [2, 0, 1]] - tri[:, [1, 2, 0]], axis=2)  # edge opposite vertex k
-    a = np.argmin(opp, axis=1)
-    rows = np.arange(len(faces))
-    A = tri[rows, a]
-    B = tri[rows, (a + 1) % 3]
-    C = tri[rows, (a + 2) % 3]
-    return A, B, C
+    """Each face's apex (the corner opposite its shortest edge, the first of equal ones) and the
+    next two corners, each (m, 3), model units."""
+    P = [vertices[faces[:, k]] for k in range(3)]
+    opp = np.stack([np.linalg.norm(P[(k + 2) % 3] - P[(k + 1) % 3], axis=1) for k in range(3)], axis=1)
+    a = np.argmin(opp, axis=1)[:, None]                               # edge opposite vertex k
+    rolled = np.take_along_axis(faces, (a + np.arange(3)) % 3, axis=1)
+    return tuple(vertices[rolled[:, j]] for j in range(3))
 
 
 def grid_counts(vertices: np.ndarray, faces: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:
@@ -90,6 +90,74 @@ def _counts(A: np.ndarray, B: np.ndarray, C: np.ndarray, spacing: float) -> tupl
     k_s = np.maximum(1, np.ceil(long_edge / spacing)).astype(np.int64)
     k_t = np.maximum(1, np.ceil(np.linalg.norm(C - B, axis=1) / spacing)).astype(np.int64)
     return k_s, k_t
+
+
+@dataclass(frozen=True, eq=False)
+class SurfaceGrid:
+    """The stratified sample grid of :func:`surface_grid_samples`, set up (faces of zero area
+    dropped, each face's apex frame and grid size found) before a sample is made, so that a
+    caller can size its memory from :attr:`n_samples` first.
+
+    Attributes
+    ----------
+    face : ndarray of int, shape (f,)
+        The faces sampled (those of non-zero area).
+    area : ndarray, shape (f,)
+        Their areas, model units^2.
+    A, B, C : ndarray, shape (f, 3)
+        Each face's apex (the vertex opposite its shortest edge) and the next two, model units.
+    k_s, k_t : ndarray of int, shape (f,)
+        Each face's grid size.
+    """
+
+    face: np.ndarray
+    area: np.ndarray
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    k_s: np.ndarray
+    k_t: np.ndarray
+
+    @property
+    def n_samples(self) -> int:
+        """The number of samples :meth:`samples` makes."""
+        return int((self.k_s * self.k_t).sum())
+
+    def samples(self, kernel: str = "auto") -> Samples:
+        """The samples (see :func:`surface_grid_samples`, which documents ``kernel``)."""
+        counts = self.k_s * self.k_t
+        if choose_kernel(kernel) == "numba":
+            n = int(counts.sum())
+            pts, w, face = np.empty((n, 3)), np.empty(n), np.empty(n, np.int64)
+            sampling_jit.grid_samples(self.A, self.B, self.C, self.area, self.k_s, self.k_t, np.cumsum(counts) - counts,
+                                      pts, w, face)
+            return Samples(points=pts, weight=w, face=self.face[face])
+        A, B, C = self.A, self.B, self.C
+        face = np.repeat(np.arange(len(self.face)), counts)
+        local = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+        i, j = np.divmod(local, self.k_t[face])
+        s = ((i + 0.5) / self.k_s[face])[:, None]
+        t = ((j + 0.5) / self.k_t[face])[:, None]
+        pts = A[face] + s * (B[face] - A[face]) + s * t * (C[face] - B[face])
+        w = 2.0 * self.area[face] * s[:, 0] / counts[face]
+        return Samples(points=pts, weight=w, face=self.face[face])
+
+
+def surface_grid(vertices: np.ndarray, faces: np.ndarray, spacing: float) -> SurfaceGrid:
+    """The sample grid of :func:`surface_grid_samples` (same parameters), before its samples.
+
+    Raises
+    ------
+    MeshError
+        Every face has zero area.
+    """
+    area = 0.5 * np.linalg.norm(np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]],
+                                         vertices[faces[:, 2]] - vertices[faces[:, 0]]), axis=1)
+    fidx = np.flatnonzero(area > 1e-12 * spacing**2)
+    if len(fidx) == 0:
+        raise MeshError("every face has zero area: nothing to sample")
+    A, B, C = _apex_frame(vertices, faces[fidx])
+    return SurfaceGrid(fidx, area[fidx], A, B, C, *_counts(A, B, C, spacing))
 
 
 def surface_grid_samples(vertices: np.ndarray, faces: np.ndarray, spacing: float, kernel: str = "auto") -> Samples:
@@ -116,28 +184,7 @@ def surface_grid_samples(vertices: np.ndarray, faces: np.ndarray, spacing: float
     Samples
         Points (model units), weights (the area each stands for, model units^2) and faces.
     """
-    area = 0.5 * np.linalg.norm(np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]],
-                                         vertices[faces[:, 2]] - vertices[faces[:, 0]]), axis=1)
-    keep = area > 1e-12 * spacing**2
-    fidx = np.flatnonzero(keep)
-    if len(fidx) == 0:
-        raise MeshError("every face has zero area: nothing to sample")
-    A, B, C = _apex_frame(vertices, faces[fidx])
-    k_s, k_t = _counts(A, B, C, spacing)
-    counts = k_s * k_t
-    if choose_kernel(kernel) == "numba":
-        n = int(counts.sum())
-        pts, w, face = np.empty((n, 3)), np.empty(n), np.empty(n, np.int64)
-        sampling_jit.grid_samples(A, B, C, area[fidx], k_s, k_t, np.cumsum(counts) - counts, pts, w, face)
-        return Samples(points=pts, weight=w, face=fidx[face])
-    face = np.repeat(np.arange(len(fidx)), counts)
-    local = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-    i, j = np.divmod(local, k_t[face])
-    s = ((i + 0.5) / k_s[face])[:, None]
-    t = ((j + 0.5) / k_t[face])[:, None]
-    pts = A[face] + s * (B[face] - A[face]) + s * t * (C[face] - B[face])
-    w = 2.0 * area[fidx][face] * s[:, 0] / counts[face]
-    return Samples(points=pts, weight=w, face=fidx[face])
+    return surface_grid(vertices, faces, spacing).samples(kernel)
 
 
 def surface_random_samples(vertices: np.ndarray, faces: np.ndarray, n: int,

@@ -39,8 +39,9 @@ def bbox_cover(vertices: np.ndarray, parts, which: np.ndarray, origin: np.ndarra
 
 
 def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np.ndarray, surf: Samples,
-                origin: np.ndarray, pitch: float, n_sub: int) -> Samples:
-    """Volume samples (weight = volume, model units^3) of the solid parts on the grid.
+                origin: np.ndarray, pitch: float, n_sub: int) -> tuple[Samples, np.ndarray]:
+    """Volume samples (weight = volume, model units^3) of the solid parts on the grid, and the cells
+    that hold them, shape (k, 3) int.
 
     Cells the surface does not touch are inside when the winding number of the solid parts at
     their centre exceeds 1/2. Every cube of the closed parts gets its volume from
@@ -55,7 +56,9 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
     dims = np.array(occupied.shape)
     solid_faces = solid_part[parts.label]
     sf = parts.faces[solid_faces]
-    sv = vertices[np.unique(sf)]
+    used = np.zeros(len(vertices), dtype=bool)
+    used[sf.ravel()] = True
+    sv = vertices[used]
     lo = np.clip(np.floor((sv.min(0) - origin) / pitch).astype(np.int64), 0, dims - 1)
     hi = np.clip(np.floor((sv.max(0) - origin) / pitch).astype(np.int64), 0, dims - 1) + 1
     region = np.zeros_like(occupied)
@@ -74,7 +77,7 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
     tight = tight_part[parts.label[surf.face]]
     leaky = on_solid & ~tight
     offs = sub_offsets(n_sub)
-    pieces = []
+    pieces, cells = [], []
     if tight.any():
         tf = parts.faces[tight_part[parts.label]]
         if leaky.any():     # interior cells of the closed parts; the others are leaky parts'
@@ -122,20 +125,25 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
         n_kept = int(keep.sum())
         pieces.append(Samples(origin + pitch * (bcells[keep] + 0.5), vol[keep], np.full(n_kept, -1, dtype=np.int64),
                               mom[keep] - mom[keep][:, :1] * FULL, np.arange(n_kept)))    # beyond an even share
+        cells.append(bcells[keep])
     pieces.append(volume_samples(interior, origin, pitch))          # whole cubes: even shares, no moments
+    cells.append(interior)
     if leaky.any():
         bcells = np.argwhere(mark_cells(np.zeros(occupied.shape, dtype=bool), surf.points, origin, pitch, leaky))
-        pts = origin + pitch * (bcells[:, None, :] + offs[None]).reshape(-1, 3)
         inside = cell_winding(vertices, sf, bcells, origin, pitch, n_sub, cone).ravel() >= 1   # a leaky solid part: its cone
+        cell, sub = np.divmod(np.flatnonzero(inside), len(offs))
+        pts = origin + pitch * (bcells[cell] + offs[sub])               # the inside sub-cubes' centres
         if tight_part.any():        # not where a watertight part already counted the volume
             tf = parts.faces[tight_part[parts.label]]
-            inside[inside] = crossing_number(vertices, tf, pts[inside]) < 0.5
+            outside_tight = crossing_number(vertices, tf, pts) < 0.5
+            inside[inside], pts = outside_tight, pts[outside_tight]
         # what each sub-cube adds beyond an even share, summed over a cell's inside ones onto its first
         inside_cq = inside.reshape(len(bcells), len(offs))
         uneven = box_moments(offs - 0.5 / n_sub, 1.0 / n_sub) - FULL / len(offs)          # (q, 27)
         count = inside_cq.sum(axis=1)
         has = count > 0
         n_in = int(count.sum())
-        pieces.append(Samples(pts[inside], np.full(n_in, pitch**3 / n_sub**3), np.full(n_in, -1, dtype=np.int64),
+        pieces.append(Samples(pts, np.full(n_in, pitch**3 / n_sub**3), np.full(n_in, -1, dtype=np.int64),
                               inside_cq[has].astype(np.float64) @ uneven, (np.cumsum(count) - count)[has]))
-    return Samples.concat(pieces)
+        cells.append(bcells[has])
+    return Samples.concat(pieces), np.vstack(cells)

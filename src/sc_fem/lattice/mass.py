@@ -95,6 +95,7 @@ def _mass_samples(occupied: np.ndarray, surf: Samples, vertices, faces, grid, op
     n_sub = opts.subsamples
     parts_info: dict[str, Any] = {}
     solid = Samples(np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64))
+    solid_cells = np.zeros((0, 3), np.int64)
     shell_face = np.ones(len(surf), dtype=bool)           # a point cloud is all shell
     if len(faces):
         parts, solid_part = _solid_parts(vertices, faces, opts.fill) if solids is None else solids
@@ -103,16 +104,16 @@ def _mass_samples(occupied: np.ndarray, surf: Samples, vertices, faces, grid, op
         parts_info = {"parts": parts.n_parts, "solid_parts": int(solid_part.sum()),
                       "shell_parts": int((~solid_part).sum())}
         if solid_faces.any():
-            solid = solid_fill(occupied, vertices, parts, solid_part, surf, origin, pitch, n_sub)
-            mark_cells(occupied, solid.points, origin, pitch)
+            solid, solid_cells = solid_fill(occupied, vertices, parts, solid_part, surf, origin, pitch, n_sub)
+            occupied[tuple(solid_cells.T)] = True
             if opts.fill == "solid" and len(solid) == 0:
                 raise InputError("fill='solid' but the surface encloses no volume at this resolution; "
                                  "use fill='auto' or 'surface' (open sheets become shells)")
     shell = Samples(surf.points[shell_face], surf.weight[shell_face] * thick, surf.face[shell_face])
 
     filled = np.zeros(occupied.shape, dtype=bool)
-    for pts in (solid.points, shell.points):
-        mark_cells(filled, pts, origin, pitch)
+    filled[tuple(solid_cells.T)] = True
+    mark_cells(filled, shell.points, origin, pitch)
     empty = np.argwhere(occupied & ~filled)
     floor = Samples(origin + pitch * (empty + 0.5), np.full(len(empty), 0.5 * pitch**3 / n_sub**3),
                     np.full(len(empty), -1, dtype=np.int64))

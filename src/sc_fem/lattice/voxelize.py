@@ -24,7 +24,7 @@ from .._progress import stage_bar, step
 from ..errors import InputError, ScFemWarning
 from ..geometry import models
 from ..geometry.mesh import load_mesh
-from ..geometry.sampling import Samples, grid_counts, surface_grid_samples, surface_random_samples
+from ..geometry.sampling import Samples, surface_grid, surface_random_samples
 from ..material import Material
 from .cubes import CubeModel
 from .grid import SPACING_FRACTION, _memory_guard, _point_cloud_pitch, _point_spacing, grid_for, hash_samples
@@ -132,8 +132,8 @@ def _voxelize(mesh: Any, opts: VoxelOptions, bar: Any) -> CubeModel:
     elif opts.n_samples is not None:
         est = opts.n_samples
     else:
-        k_s, k_t = grid_counts(vertices, faces, spacing)
-        est = int((k_s * k_t).sum())
+        sample_grid = surface_grid(vertices, faces, spacing)
+        est = sample_grid.n_samples
     # boundary cubes (about 1.5 area / pitch^2 = est / 40) get n_sub^3 inside-test samples each
     _memory_guard(vertices, faces, bounds, dims, est + est * opts.subsamples**3 // 32, budget)
     if cloud:       # each point stands for the area of a square of the typical point spacing
@@ -142,7 +142,7 @@ def _voxelize(mesh: Any, opts: VoxelOptions, bar: Any) -> CubeModel:
     elif opts.n_samples is not None:
         surf = surface_random_samples(vertices, faces, est, np.random.default_rng(opts.seed))
     else:
-        surf = surface_grid_samples(vertices, faces, spacing)
+        surf = sample_grid.samples()
 
     step(bar, STAGES[2])
     bodies, face_body, parts = _find_bodies(vertices, faces, opts, longest, cloud)
