@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 import sc_fem
 import shapes
+from sc_fem._jit import available as numba_available
 from sc_fem.errors import ScFemWarning
 from sc_fem.lattice.gridcut import cut_by_grid
 from sc_fem.geometry.inside import mesh_parts
@@ -494,3 +495,31 @@ def test_valid_moments_with_the_full_cubes_named_as_without(rng):
     np.testing.assert_array_equal(a, b)
     np.testing.assert_array_equal(rep_a, rep_b)
     assert rep_a[:6].all() and rep_a.sum() == 6
+
+
+@pytest.mark.skipif(not numba_available(), reason="the compiled certificate needs numba (extra 'fast')")
+def test_positive_definite_certificate_never_vouches_for_what_the_eigenvalues_reject(rng):
+    """The Cholesky certificate :func:`valid_moments` skips the eigenvalues with: on boxes from
+    slabs 1e-9 thin to whole cubes, blends of them, and invalid sets (one moment pushed out, some
+    by a hair), every certified set has a positive smallest eigenvalue (eigvalsh, the oracle), no
+    invalid set is certified, every box thicker than 1/20 of the cube is, and both kernels return the same moments."""
+    from sc_fem.lattice import moments_jit
+    from sc_fem.lattice.moments import _PAIR_MOMENT, CERTAIN_MARGIN, box_moments, moment_matrix, valid_moments
+
+    thick = 10.0 ** rng.uniform(-9, 0, 400)
+    lo = rng.random((400, 3)) * (1 - thick[:, None])
+    boxes = np.vstack([box_moments(lo[i:i + 1], thick[i]) for i in range(400)])   # 400 sets, not elements
+    blends = rng.random((200, 1)) * boxes[:200] + rng.random((200, 1)) * boxes[200:]
+    bad = blends[:200].copy()
+    bad[:, 26] -= np.abs(bad[:, 26]) * 10.0 ** rng.uniform(-12, 1, 200) + 1e-3 * bad[:, 0] * (rng.random(200) < 0.5)
+    sets = np.vstack([boxes, blends, bad])
+    ev = np.linalg.eigvalsh(moment_matrix(sets))
+    certain = np.empty(len(sets), dtype=bool)
+    moments_jit.positive_definite(sets, _PAIR_MOMENT, CERTAIN_MARGIN, certain)
+    assert np.all(ev[certain, 0] > 0)
+    assert not np.any(certain & (ev[:, 0] < -1e-10 * ev[:, -1]))
+    assert certain[:400][thick > 0.05].all() and (ev[600:, 0] < -1e-10 * ev[600:, -1]).any()     # sub-cubes of 1/4 and more
+    a, rep_a = valid_moments(sets, kernel="numba")
+    b, rep_b = valid_moments(sets, kernel="numpy")
+    np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(rep_a, rep_b)

@@ -1,4 +1,5 @@
-"""Compiled surface integrals of :func:`sc_fem.lattice.moments.piece_integrals` (numba, optional).
+"""Compiled surface integrals of :func:`sc_fem.lattice.moments.piece_integrals` and the positive
+definiteness certificate of :func:`sc_fem.lattice.moments.valid_moments` (numba, optional).
 
 The numpy path builds (pieces, 16 points, 3 axes, 4 powers) arrays; this kernel integrates piece
 after piece with the same collapsed Gauss rule, so both agree to round-off. Without
@@ -7,7 +8,9 @@ numba (the optional extra ``sc_fem[fast]``) the numpy path runs.
 
 from __future__ import annotations
 
-from .._jit import compiled, prange
+import numpy as np
+
+from .._jit import compiled, compiled_parallel, prange
 
 
 def _piece_integrals_py(pieces, cells, origin, pitch, st, w, inner, column):  # pragma: no cover - compiled
@@ -47,3 +50,36 @@ def _piece_integrals_py(pieces, cells, origin, pitch, st, w, inner, column):  # 
 
 piece_integrals = compiled(_piece_integrals_py)
 """The compiled :func:`_piece_integrals_py` (None without numba)."""
+
+
+def _positive_definite_py(moments, pair, shift, out):  # pragma: no cover - compiled
+    """Whether the Gram matrix ``G = moments[i, pair]`` (8, 8) of each row of ``moments`` (n, 27)
+    less ``shift * trace(G)`` times the identity has a Cholesky factor (all pivots positive), into
+    ``out`` (n,) bool: a certificate that ``G`` is positive definite with that margin."""
+    for i in prange(moments.shape[0]):
+        L = np.zeros((8, 8))
+        tr = 0.0
+        for a in range(8):
+            tr += moments[i, pair[a, a]]
+        s = shift * tr
+        ok = tr > 0
+        for j in range(8):
+            if not ok:
+                break
+            d = moments[i, pair[j, j]] - s
+            for k in range(j):
+                d -= L[j, k] * L[j, k]
+            if not d > 0:
+                ok = False
+                break
+            L[j, j] = np.sqrt(d)
+            for r in range(j + 1, 8):
+                v = moments[i, pair[r, j]]
+                for k in range(j):
+                    v -= L[r, k] * L[j, k]
+                L[r, j] = v / L[j, j]
+        out[i] = ok
+
+
+positive_definite = compiled_parallel(_positive_definite_py)
+"""The compiled :func:`_positive_definite_py`, its rows split over the cores (None without numba)."""
