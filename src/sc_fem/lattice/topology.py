@@ -86,7 +86,7 @@ def mark_cells(grid: np.ndarray, points: np.ndarray, origin: np.ndarray, pitch: 
     if compiled and p.ndim == 2 and p.shape[1] == 3 and grid.flags.c_contiguous:
         sel = np.zeros(0, dtype=bool) if select is None else np.asarray(select, dtype=bool)
         topology_jit.mark(np.ascontiguousarray(p, dtype=np.float64), np.asarray(origin, dtype=np.float64).reshape(3),
-                          float(pitch), dims - 1, sel, grid)
+                          float(pitch), dims - 1, sel, grid.reshape(-1))
         return grid
     grid[tuple(voxel_index(p if select is None else p[select], origin, pitch, dims, kernel="numpy").T)] = True
     return grid
