@@ -86,6 +86,22 @@ def test_cell_winding_is_the_rounded_winding_number_point_for_point(name, n_sub,
     assert set(np.unique(got)) >= {0.0, 1.0}
 
 
+@pytest.mark.parametrize("n_sub", [1, 2])
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_cell_winding_far_from_every_hole_needs_no_cone(n_sub, kernel):
+    """Cells far below a leaky sphere's hole, where the bound rules the cone out in every cell: the
+    crossings alone, equal to the winding number (0 below the sphere, 1 inside it)."""
+    mesh = _leaky_sphere()
+    v, f = np.asarray(mesh.vertices, float), np.asarray(mesh.faces)
+    origin, pitch, dims = _grid(v, 16)
+    cells = np.argwhere(np.ones((16, 16, 3), bool))                  # the bottom three layers
+    pts = origin + pitch * (cells[:, None, :] + sub_offsets(n_sub)[None])
+    ref = np.rint(winding_number(v, f, pts.reshape(-1, 3))).reshape(len(cells), -1)
+    got = cell_winding(v, f, cells, origin, pitch, n_sub, kernel=kernel)
+    np.testing.assert_array_equal(got, ref)
+    assert set(np.unique(got)) == {0.0, 1.0}
+
+
 def test_cell_winding_on_the_bunny_surface_cells_as_the_voxelizer_calls_it():
     """The bunny (5 holes) at 32: the surface cells' 4^3 sub-cube centres, the cone passed in."""
     from conftest import SHARED_MESHES
@@ -142,6 +158,33 @@ def test_column_crossings_agree_with_numpy_also_past_the_ray_cache_and_outside_t
     in_box = np.all((pts[..., :2] > 0) & (pts[..., :2] < 1), axis=-1) & (pts[..., 2] > 0) \
         & (np.floor(pts[..., 2]) % 2 == 0) & (pts[..., 2] < 2 * n_box)
     np.testing.assert_array_equal(got, in_box.astype(float))
+
+
+@pytest.mark.skipif(not numba_available(), reason="the compiled kernel needs numba (extra 'fast')")
+@pytest.mark.parametrize("name", ["leaky sphere", "holey box and ball", "leaky soup"])
+def test_cone_bound_compiled_and_numpy_certify_the_same_cells(name):
+    """The first step of :func:`_cone_certain` compiled and in numpy, for cells (half diagonal) and
+    for points (0): the same cells, and a loop over cells and pieces for the sums."""
+    mesh = CASES[name][0]()
+    v, f = np.asarray(mesh.vertices, float), np.asarray(mesh.faces)
+    origin, pitch, dims = _grid(v, 20)
+    apex, cone = boundary_cone(v, f)
+    cv = np.vstack([v, apex])
+    centres = origin + pitch * (np.argwhere(np.ones(tuple(dims), bool)) + 0.5)
+    for h in (0.0, 0.5 * np.sqrt(3) * pitch):
+        a = _cone_certain(cv, apex, cone, centres, h, kernel="numba")
+        np.testing.assert_array_equal(a, _cone_certain(cv, apex, cone, centres, h, kernel="numpy"))
+        assert 0.1 < a.mean() < 1.0
+    tri = cv[cone]
+    piece = cone[:, 2] - len(v)
+    area = np.bincount(piece, weights=0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1))
+    radius = np.array([np.linalg.norm(tri[piece == p][:, :2] - apex[p], axis=2).max() for p in range(len(apex))])
+    got = np.empty(50)
+    inside_jit.area_bounds(centres[:50].copy(), apex, radius, area, 0.1, got)
+    ref = [sum(area[p] / (np.linalg.norm(c - apex[p]) - radius[p] - 0.1) ** 2
+               if np.linalg.norm(c - apex[p]) - radius[p] - 0.1 > 0 else np.inf for p in range(len(apex))) / (4 * np.pi)
+           for c in centres[:50]]                                     # 50 cells, a few pieces: the oracle loop
+    np.testing.assert_allclose(got, ref, rtol=1e-12)
 
 
 @pytest.mark.skipif(not numba_available(), reason="the compiled kernel needs numba (extra 'fast')")

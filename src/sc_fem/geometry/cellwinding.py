@@ -65,9 +65,9 @@ def _rim_bounds(centres: np.ndarray, tri: np.ndarray, half_diagonal: float,
 
 
 def _cone_certain(closed_v: np.ndarray, apex: np.ndarray, cone: np.ndarray, centres: np.ndarray,
-                  half_diagonal: float) -> np.ndarray:
+                  half_diagonal: float, kernel: str = "auto") -> np.ndarray:
     """Cells (centres (c, 3), model units) in which the cone's winding number is certainly below
-    :data:`CONE_CERTAIN` in magnitude, in two steps.
+    :data:`CONE_CERTAIN` in magnitude, in two steps (``half_diagonal`` 0: at the centres alone).
 
     1. Far from the holes: a surface of area ``A`` at distance ``>= d`` subtends a solid angle of at
        most ``A / d^2``; summed over the cone's pieces (one fan per apex), each piece's distance
@@ -78,7 +78,8 @@ def _cone_certain(closed_v: np.ndarray, apex: np.ndarray, cone: np.ndarray, cent
 
     ``closed_v``: the mesh's vertices, then the apexes (``apex`` (a, 3)); ``cone`` (c, 3) indexes it.
     On the bunny at 64 the first step leaves 14 % of the 11,288 cells of its vertices, the second
-    3.4 %; the winding number exceeds 0.4 in 1.1 % (at 64 points a cell).
+    3.4 %; the winding number exceeds 0.4 in 1.1 % (at 64 points a cell). ``kernel``: the first
+    step compiled (:data:`sc_fem.geometry.inside_jit.area_bounds`, with numba) or numpy.
     """
     if len(apex) > CONE_PIECES_BOUNDED:
         return np.zeros(len(centres), dtype=bool)
@@ -89,7 +90,12 @@ def _cone_certain(closed_v: np.ndarray, apex: np.ndarray, cone: np.ndarray, cent
     radius = np.zeros(len(apex))
     np.maximum.at(radius, piece, np.linalg.norm(tri[:, :2] - apex[piece][:, None, :], axis=2).max(axis=1))
     certain = np.zeros(len(centres), dtype=bool)
-    for s in range(0, len(centres), 1 << 16):            # chunks of cells x pieces (bounded memory)
+    if choose_kernel(kernel) == "numba":
+        bound = np.empty(len(centres))
+        inside_jit.area_bounds(np.ascontiguousarray(centres, dtype=np.float64), np.ascontiguousarray(apex), radius,
+                               area, float(half_diagonal), bound)
+        certain[:] = bound < CONE_CERTAIN
+    for s in range(0, len(centres) if choose_kernel(kernel) == "numpy" else 0, 1 << 16):   # chunks of cells x pieces
         d = np.linalg.norm(centres[s:s + (1 << 16), None, :] - apex[None], axis=2) - radius - half_diagonal
         bound = np.sum(np.where(d > 0, area / np.where(d > 0, d, 1.0) ** 2, np.inf), axis=1) / (4 * np.pi)
         certain[s:s + (1 << 16)] = bound < CONE_CERTAIN
@@ -154,14 +160,16 @@ def cell_winding(vertices: np.ndarray, faces: np.ndarray, cells: np.ndarray, ori
         pts = origin + pitch * (cells[:, None, :] + offs[None])     # as the callers build them
         return np.rint(_fast_winding_number(v, f, pts.reshape(-1, 3))).reshape(out.shape)
     order = [(axis + 1) % 3, (axis + 2) % 3, axis]          # a rotation taking the ray's axis to z
-    counter = _column_count if choose_kernel(kernel) == "numba" else _point_count
+    compiled = choose_kernel(kernel) == "numba"
+    counter = _column_count if compiled else _point_count
     counter(closed_v[:, order], np.vstack([f, cone_f]), cells[:, order], np.asarray(origin, dtype=np.float64)[order],
             pitch, n_sub, np.arange(len(offs)).reshape((n_sub,) * 3).transpose(order), out)
-    if len(cone_f):          # one point a cell: libigl's far field is cheaper than the bound
+    if len(cone_f):          # one point a cell, no compiled bound: libigl's far field is cheaper than the bound
         near = np.flatnonzero(~_cone_certain(closed_v, apex, cone_f, origin + pitch * (cells + 0.5),
-                                             0.5 * np.sqrt(3) * pitch) if n_sub > 1 else np.ones(len(cells), bool))
+                                             0.5 * np.sqrt(3) * pitch if n_sub > 1 else 0.0, kernel)
+                              if n_sub > 1 or compiled else np.ones(len(cells), bool))
         pts = origin + pitch * (cells[near][:, None, :] + offs[None])
-        out[near] = np.rint(out[near] - cone_winding_number(closed_v, cone_f, pts.reshape(-1, 3)).reshape(len(near), -1))
+        out[near] = np.rint(out[near] - cone_winding_number(closed_v, cone_f, pts.reshape(-1, 3)).reshape(len(near), len(offs)))
     return out
 
 

@@ -262,3 +262,23 @@ def _rim_bounds_py(c, lo, hi, a, e, h, box, grad):  # pragma: no cover - compile
 
 rim_bounds = compiled_parallel(_rim_bounds_py)
 """The compiled :func:`_rim_bounds_py` (None without numba)."""
+
+
+def _area_bounds_py(c, apex, radius, area, h, out):  # pragma: no cover - compiled
+    """For each centre ``c`` (k, 3): ``1/(4 pi) sum over the cone's pieces of area / (distance to the
+    apex - radius - h)^2`` (inf when a piece comes within ``h``) into ``out`` (k,) -- the numpy path
+    of :func:`sc_fem.geometry.cellwinding._cone_certain`'s first step, with the same arithmetic."""
+    for i in prange(c.shape[0]):
+        b = 0.0
+        for p in range(apex.shape[0]):
+            d2 = 0.0
+            for j in range(3):
+                d = c[i, j] - apex[p, j]
+                d2 += d * d
+            d = np.sqrt(d2) - radius[p] - h
+            b += area[p] / (d * d) if d > 0 else np.inf
+        out[i] = b / (4 * np.pi)
+
+
+area_bounds = compiled_parallel(_area_bounds_py)
+"""The compiled :func:`_area_bounds_py` (None without numba)."""
