@@ -129,7 +129,7 @@ def test_solid_fill_names_the_cells_its_samples_lie_in():
     """The cells :func:`sc_fem.lattice.fill.solid_fill` returns are those its samples hash to (the
     voxelizer marks them instead of hashing every sample again): closed boxes that overlap, a
     leaky sphere, in millimetres 3 m off the origin."""
-    from sc_fem.geometry.sampling import surface_grid_samples
+    from sc_fem.geometry.sampling import Samples, surface_grid_samples
     from sc_fem.lattice.fill import solid_fill
     from sc_fem.lattice.mass import _occupied_cells, _solid_parts
     from sc_fem.lattice.topology import unique_cells, voxel_index
@@ -145,7 +145,8 @@ def test_solid_fill_names_the_cells_its_samples_lie_in():
     parts, solid_part = _solid_parts(v, f, "auto")
     assert solid_part.all() and not parts.watertight.all()
     occupied, _ = _occupied_cells(surf, v, f, (origin, pitch, dims), "sampled")
-    samples, cells = solid_fill(occupied, v, parts, solid_part, surf, origin, pitch, 4)
+    pieces, cells = solid_fill(occupied, v, parts, solid_part, surf, origin, pitch, 4)
+    samples = Samples.concat(pieces)
     assert len(samples) > len(cells) > 0
     np.testing.assert_array_equal(unique_cells(cells, dims), unique_cells(voxel_index(samples.points, origin, pitch, dims), dims))
 

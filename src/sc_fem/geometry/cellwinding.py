@@ -100,7 +100,7 @@ def _cone_certain(closed_v: np.ndarray, apex: np.ndarray, cone: np.ndarray, cent
         bound = np.sum(np.where(d > 0, area / np.where(d > 0, d, 1.0) ** 2, np.inf), axis=1) / (4 * np.pi)
         certain[s:s + (1 << 16)] = bound < CONE_CERTAIN
     rest = np.flatnonzero(~certain)
-    if len(rest) == 0 or len(rest) * len(cone) > RIM_PAIRS:
+    if len(rest) == 0 or len(rest) * len(cone) > RIM_PAIRS or half_diagonal == 0:   # 0: step 2 is libigl's value
         return certain
     box, grad = _rim_bounds(centres[rest], tri, half_diagonal)
     rest, grad = rest[box > half_diagonal], grad[box > half_diagonal]

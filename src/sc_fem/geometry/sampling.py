@@ -207,6 +207,9 @@ def volume_samples(cells: np.ndarray, origin: np.ndarray, pitch: float) -> Sampl
     """2 x 2 x 2 samples at the sub-cell centres of each cell, each weighing ``pitch^3 / 8``."""
     sub = (np.stack(np.meshgrid([0.25, 0.75], [0.25, 0.75], [0.25, 0.75], indexing="ij"), -1)
            .reshape(8, 3))
-    pts = origin + pitch * (cells[:, None, :] + sub[None]).reshape(-1, 3)
+    pts = np.repeat(np.asarray(cells, dtype=np.float64), 8, axis=0)      # in place: origin + pitch * (cell + sub)
+    pts.reshape(-1, 8, 3)[...] += sub
+    pts *= pitch
+    pts += origin
     return Samples(points=pts, weight=np.full(len(pts), pitch**3 / 8.0),
                    face=np.full(len(pts), -1, dtype=np.int64))

@@ -39,9 +39,9 @@ def bbox_cover(vertices: np.ndarray, parts, which: np.ndarray, origin: np.ndarra
 
 
 def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np.ndarray, surf: Samples,
-                origin: np.ndarray, pitch: float, n_sub: int) -> tuple[Samples, np.ndarray]:
-    """Volume samples (weight = volume, model units^3) of the solid parts on the grid, and the cells
-    that hold them, shape (k, 3) int.
+                origin: np.ndarray, pitch: float, n_sub: int) -> tuple[list[Samples], np.ndarray]:
+    """Volume samples (weight = volume, model units^3) of the solid parts on the grid, in pieces
+    (for the caller to join with its own in one copy), and the cells that hold them, shape (k, 3) int.
 
     Cells the surface does not touch are inside when the winding number of the solid parts at
     their centre exceeds 1/2. Every cube of the closed parts gets its volume from
@@ -132,7 +132,10 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
         bcells = np.argwhere(mark_cells(np.zeros(occupied.shape, dtype=bool), surf.points, origin, pitch, leaky))
         inside = cell_winding(vertices, sf, bcells, origin, pitch, n_sub, cone).ravel() >= 1   # a leaky solid part: its cone
         cell, sub = np.divmod(np.flatnonzero(inside), len(offs))
-        pts = origin + pitch * (bcells[cell] + offs[sub])               # the inside sub-cubes' centres
+        pts = bcells[cell].astype(np.float64)                   # the inside sub-cubes' centres, in place:
+        pts += offs[sub]                                        # origin + pitch * (cell + offset)
+        pts *= pitch
+        pts += origin
         if tight_part.any():        # not where a watertight part already counted the volume
             tf = parts.faces[tight_part[parts.label]]
             outside_tight = crossing_number(vertices, tf, pts) < 0.5
@@ -146,4 +149,4 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
         pieces.append(Samples(pts, np.full(n_in, pitch**3 / n_sub**3), np.full(n_in, -1, dtype=np.int64),
                               inside_cq[has].astype(np.float64) @ uneven, (np.cumsum(count) - count)[has]))
         cells.append(bcells[has])
-    return Samples.concat(pieces), np.vstack(cells)
+    return pieces, np.vstack(cells)

@@ -94,7 +94,7 @@ def _mass_samples(occupied: np.ndarray, surf: Samples, vertices, faces, grid, op
     origin, pitch, dims = grid
     n_sub = opts.subsamples
     parts_info: dict[str, Any] = {}
-    solid = Samples(np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64))
+    solid: list[Samples] = []
     solid_cells = np.zeros((0, 3), np.int64)
     shell_face = np.ones(len(surf), dtype=bool)           # a point cloud is all shell
     if len(faces):
@@ -106,7 +106,7 @@ def _mass_samples(occupied: np.ndarray, surf: Samples, vertices, faces, grid, op
         if solid_faces.any():
             solid, solid_cells = solid_fill(occupied, vertices, parts, solid_part, surf, origin, pitch, n_sub)
             occupied[tuple(solid_cells.T)] = True
-            if opts.fill == "solid" and len(solid) == 0:
+            if opts.fill == "solid" and not any(len(p) for p in solid):
                 raise InputError("fill='solid' but the surface encloses no volume at this resolution; "
                                  "use fill='auto' or 'surface' (open sheets become shells)")
     shell = Samples(surf.points[shell_face], surf.weight[shell_face] * thick, surf.face[shell_face])
@@ -117,7 +117,7 @@ def _mass_samples(occupied: np.ndarray, surf: Samples, vertices, faces, grid, op
     empty = np.argwhere(occupied & ~filled)
     floor = Samples(origin + pitch * (empty + 0.5), np.full(len(empty), 0.5 * pitch**3 / n_sub**3),
                     np.full(len(empty), -1, dtype=np.int64))
-    samples = Samples.concat([solid, shell, floor])      # shells and floors: spread evenly over the cube
+    samples = Samples.concat(solid + [shell, floor])     # shells and floors: spread evenly over the cube
     return samples, parts_info, bool(shell_face.any()), int(len(empty))
 
 
