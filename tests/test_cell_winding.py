@@ -102,6 +102,22 @@ def test_cell_winding_far_from_every_hole_needs_no_cone(n_sub, kernel):
     assert set(np.unique(got)) == {0.0, 1.0}
 
 
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_cell_winding_set_up_once_gives_what_each_call_alone_gives(kernel, rng):
+    """One :class:`CellWinding` called on sets of cells with 1, 3 and 2 points a side (bins of other
+    sizes: 20,000 cells and then 8) and again on the first: each result is the fresh call's."""
+    from sc_fem.geometry.cellwinding import CellWinding
+
+    mesh = _leaky_soup()
+    v, f = np.asarray(mesh.vertices, float), np.asarray(mesh.faces)
+    origin, pitch, dims = _grid(v, 32)
+    every = np.argwhere(np.ones(tuple(dims), bool))
+    sets = [(every[rng.permutation(len(every))[:20000]], 1), (every[:3000], 3), (every[-8:], 2)]
+    winding = CellWinding(v, f, origin, pitch, kernel=kernel)
+    for cells, n_sub in sets + sets[:1]:
+        np.testing.assert_array_equal(winding(cells, n_sub), cell_winding(v, f, cells, origin, pitch, n_sub, kernel=kernel))
+
+
 def test_cell_winding_on_the_bunny_surface_cells_as_the_voxelizer_calls_it():
     """The bunny (5 holes) at 32: the surface cells' 4^3 sub-cube centres, the cone passed in."""
     from conftest import SHARED_MESHES

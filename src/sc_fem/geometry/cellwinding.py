@@ -14,7 +14,7 @@ import numpy as np
 from . import inside_jit
 from .._jit import choose_kernel
 from .inside import _fast_winding_number, _ray_axis, boundary_cone, cone_winding_number
-from .rays import binned_faces, crossing_number
+from .rays import binned_faces, crossing_number, n_bins
 
 CONE_CERTAIN = 0.4
 """:func:`cell_winding` skips the cone's winding number in a cell where a bound says it is below this
@@ -108,88 +108,110 @@ def _cone_certain(closed_v: np.ndarray, apex: np.ndarray, cone: np.ndarray, cent
     return certain
 
 
-def cell_winding(vertices: np.ndarray, faces: np.ndarray, cells: np.ndarray, origin: np.ndarray, pitch: float,
-                 n_sub: int = 1, cone: tuple[np.ndarray, np.ndarray] | None = None,
-                 kernel: str = "auto") -> np.ndarray:
-    """The rounded generalized winding number at the sub-cube centres of grid cells.
+class CellWinding:
+    """The rounded generalized winding number of one surface at the sub-cube centres of cells of
+    one grid, set up once for several sets of cells (:func:`cell_winding` is one call of it).
 
     Equal to ``np.rint(winding_number(vertices, faces, points, cone))``
     (:func:`~sc_fem.geometry.inside.winding_number`) for the points
     ``origin + pitch * (cells[:, None, :] + sub_offsets(n_sub)[None])`` (so ``>= 1`` is its
     ``> 1/2``), found faster: the points are visited along the rays it casts, so that the points
-    on one ray share its crossings (:func:`~sc_fem.geometry.rays.crossing_number`), and, with
-    several points a cell, the cone's winding number over the holes is evaluated only in cells
-    where it could reach :data:`CONE_CERTAIN` (:func:`_cone_certain`; elsewhere it cannot change
-    the rounded count).
+    on one ray share its crossings (:func:`~sc_fem.geometry.rays.crossing_number`), and the
+    cone's winding number over the holes is evaluated only where a bound
+    (:func:`_cone_certain`) lets it reach :data:`CONE_CERTAIN` (elsewhere it cannot change the
+    rounded count). The faces the rays cross, rotated and binned, are kept between calls that
+    cast their rays along the same axis with bins of the same size.
 
     Parameters
     ----------
     vertices : ndarray, shape (n, 3)
         Model units.
     faces : ndarray of int, shape (m, 3)
-    cells : ndarray of int, shape (c, 3)
-        Grid cells.
     origin : ndarray, shape (3,)
         The grid's corner, model units.
     pitch : float
         The cells' side, model units.
-    n_sub : int
-        Sub-cubes per side of each cell.
     cone : (apex, cone faces), optional
         :func:`~sc_fem.geometry.inside.boundary_cone` of ``(vertices, faces)`` when the caller has it.
     kernel : {"auto", "numba", "numpy"}
         The crossings counted column by column by a compiled kernel (with numba), or every point
         built and counted by :func:`~sc_fem.geometry.rays.crossing_number`; the same counts.
-
-    Returns
-    -------
-    ndarray of float, shape (c, n_sub^3)
-        Integer values, sub-cubes in :func:`sub_offsets` order.
     """
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-    cells = np.asarray(cells, dtype=np.int64).reshape(-1, 3)
-    offs = sub_offsets(n_sub)
-    out = np.zeros((len(cells), len(offs)))
-    if len(f) == 0 or len(cells) == 0:
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, origin: np.ndarray, pitch: float,
+                 cone: tuple[np.ndarray, np.ndarray] | None = None, kernel: str = "auto") -> None:
+        self.v = np.asarray(vertices, dtype=np.float64)
+        self.f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+        self.origin, self.pitch = np.asarray(origin, dtype=np.float64).reshape(3), float(pitch)
+        self.apex, self.cone = boundary_cone(self.v, self.f) if cone is None and len(self.f) else (
+            (np.zeros((0, 3)), np.zeros((0, 3), np.int64)) if cone is None else cone)
+        self.closed_v = np.vstack([self.v, self.apex])
+        self.compiled = choose_kernel(kernel) == "numba"
+        self._binned: dict = {}                  # axis -> rotated faces and box; (axis, n_bins) -> bins
+
+    def __call__(self, cells: np.ndarray, n_sub: int = 1) -> np.ndarray:
+        """The rounded winding numbers at the ``n_sub^3`` sub-cube centres of ``cells`` (c, 3) int:
+        shape (c, n_sub^3), integer values, sub-cubes in :func:`sub_offsets` order."""
+        f, cone, origin, pitch = self.f, self.cone, self.origin, self.pitch
+        cells = np.asarray(cells, dtype=np.int64).reshape(-1, 3)
+        offs = sub_offsets(n_sub)
+        out = np.zeros((len(cells), len(offs)))
+        if len(f) == 0 or len(cells) == 0:
+            return out
+        axis = _ray_axis(self.closed_v, f, cone, out.size) if len(cone) else 2
+        if axis is None:                         # the cone would crowd the ray-crossing bins: libigl alone
+            pts = origin + pitch * (cells[:, None, :] + offs[None])     # as the callers build them
+            return np.rint(_fast_winding_number(self.v, f, pts.reshape(-1, 3))).reshape(out.shape)
+        order = [(axis + 1) % 3, (axis + 2) % 3, axis]          # a rotation taking the ray's axis to z
+        sub_index = np.arange(len(offs)).reshape((n_sub,) * 3).transpose(order)
+        if self.compiled:
+            self._column_count(axis, cells[:, order], origin[order], n_sub, sub_index, out)
+        else:
+            _point_count(self.closed_v[:, order], np.vstack([f, cone]), cells[:, order], origin[order], pitch, n_sub,
+                         sub_index, out)
+        if len(cone):            # one point a cell, no compiled bound: libigl's far field is cheaper than the bound
+            near = np.flatnonzero(~_cone_certain(self.closed_v, self.apex, cone, origin + pitch * (cells + 0.5),
+                                                 0.5 * np.sqrt(3) * pitch if n_sub > 1 else 0.0,
+                                                 "numba" if self.compiled else "numpy")
+                                  if n_sub > 1 or self.compiled else np.ones(len(cells), bool))
+            pts = origin + pitch * (cells[near][:, None, :] + offs[None])
+            w = cone_winding_number(self.closed_v, cone, pts.reshape(-1, 3))
+            out[near] = np.rint(out[near] - w.reshape(len(near), len(offs)))
         return out
-    apex, cone_f = boundary_cone(v, f) if cone is None else cone
-    closed_v = np.vstack([v, apex])
-    axis = _ray_axis(closed_v, f, cone_f, out.size) if len(cone_f) else 2
-    if axis is None:                         # the cone would crowd the ray-crossing bins: libigl alone
-        pts = origin + pitch * (cells[:, None, :] + offs[None])     # as the callers build them
-        return np.rint(_fast_winding_number(v, f, pts.reshape(-1, 3))).reshape(out.shape)
-    order = [(axis + 1) % 3, (axis + 2) % 3, axis]          # a rotation taking the ray's axis to z
-    compiled = choose_kernel(kernel) == "numba"
-    counter = _column_count if compiled else _point_count
-    counter(closed_v[:, order], np.vstack([f, cone_f]), cells[:, order], np.asarray(origin, dtype=np.float64)[order],
-            pitch, n_sub, np.arange(len(offs)).reshape((n_sub,) * 3).transpose(order), out)
-    if len(cone_f):          # one point a cell, no compiled bound: libigl's far field is cheaper than the bound
-        near = np.flatnonzero(~_cone_certain(closed_v, apex, cone_f, origin + pitch * (cells + 0.5),
-                                             0.5 * np.sqrt(3) * pitch if n_sub > 1 else 0.0, kernel)
-                              if n_sub > 1 or compiled else np.ones(len(cells), bool))
-        pts = origin + pitch * (cells[near][:, None, :] + offs[None])
-        out[near] = np.rint(out[near] - cone_winding_number(closed_v, cone_f, pts.reshape(-1, 3)).reshape(len(near), len(offs)))
-    return out
+
+    def _column_count(self, axis: int, cells: np.ndarray, o: np.ndarray, n_sub: int, sub_index: np.ndarray,
+                      out: np.ndarray) -> None:
+        """The signed ray crossings at the sub-cube centres of ``cells`` into ``out`` (c, n_sub^3),
+        compiled (:data:`sc_fem.geometry.inside_jit.column_crossings`): the cells grouped into
+        columns along the ray, each ray's crossings found once for its column. ``cells`` and ``o``
+        are rotated so that the rays run along z; ``sub_index[a, b, k]`` is the column of ``out``
+        of the sub-cube ``(a, b, k)`` in that frame."""
+        if axis not in self._binned:             # the rotated faces (with their box), then their bins by size
+            order = [(axis + 1) % 3, (axis + 2) % 3, axis]
+            self._binned[axis] = binned_faces(self.closed_v[:, order], np.vstack([self.f, self.cone]), 0)
+        if self._binned[axis] is None:
+            return
+        tri, lo, hi = self._binned[axis][:3]
+        nb = n_bins(len(tri), out.size)
+        size = np.maximum(hi - lo, 1e-300) / nb
+        if (axis, nb) not in self._binned:
+            self._binned[axis, nb] = inside_jit.bin_faces(tri, lo, size, nb)
+        start, bin_face = self._binned[axis, nb]
+        base = np.array([cells[:, 0].min(), cells[:, 1].min()])                # per axis: ~5x a reduction over axis 0
+        span = np.array([cells[:, 0].max(), cells[:, 1].max()]) - base + 1
+        perm, col_start = inside_jit.columns((cells[:, 0] - base[0]) * span[1] + cells[:, 1] - base[1], int(span.prod()))
+        inside_jit.column_crossings(cells, col_start, perm, o, self.pitch, (np.arange(n_sub) + 0.5) / n_sub,
+                                    np.ascontiguousarray(sub_index), tri, lo, hi, size, nb, start, bin_face, out)
 
 
-def _column_count(v: np.ndarray, faces: np.ndarray, cells: np.ndarray, o: np.ndarray, pitch: float, n_sub: int,
-                  sub_index: np.ndarray, out: np.ndarray) -> None:
-    """The signed ray crossings at the sub-cube centres of ``cells`` into ``out`` (c, n_sub^3), the
-    compiled way (:data:`sc_fem.geometry.inside_jit.column_crossings`): the cells grouped into
-    columns along the ray, each ray's crossings found once for its column. ``v``, ``cells`` and
-    ``o`` are rotated so that the rays run along z; ``sub_index[a, b, k]`` is the column of ``out``
-    of the sub-cube ``(a, b, k)`` in that frame."""
-    binned = binned_faces(v, faces, out.size)
-    if binned is None:
-        return
-    tri, lo, hi, size, nb = binned
-    start, bin_face = inside_jit.bin_faces(tri, lo, size, nb)
-    base = np.array([cells[:, 0].min(), cells[:, 1].min()])                # per axis: ~5x a reduction over axis 0
-    span = np.array([cells[:, 0].max(), cells[:, 1].max()]) - base + 1
-    perm, col_start = inside_jit.columns((cells[:, 0] - base[0]) * span[1] + cells[:, 1] - base[1], int(span.prod()))
-    inside_jit.column_crossings(cells, col_start, perm, o, float(pitch), (np.arange(n_sub) + 0.5) / n_sub,
-                                np.ascontiguousarray(sub_index), tri, lo, hi, size, nb, start, bin_face, out)
+def cell_winding(vertices: np.ndarray, faces: np.ndarray, cells: np.ndarray, origin: np.ndarray, pitch: float,
+                 n_sub: int = 1, cone: tuple[np.ndarray, np.ndarray] | None = None,
+                 kernel: str = "auto") -> np.ndarray:
+    """The rounded generalized winding number at the sub-cube centres of grid cells: one call of
+    :class:`CellWinding` (which documents the parameters) on ``cells`` (c, 3) int with ``n_sub``
+    sub-cubes a side. Returns shape (c, n_sub^3), integer values, sub-cubes in
+    :func:`sub_offsets` order."""
+    return CellWinding(vertices, faces, origin, pitch, cone, kernel)(cells, n_sub)
 
 
 def _point_count(v: np.ndarray, faces: np.ndarray, cells: np.ndarray, o: np.ndarray, pitch: float, n_sub: int,

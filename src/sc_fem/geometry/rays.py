@@ -112,18 +112,24 @@ def binned_faces(vertices: np.ndarray, faces: np.ndarray,
     point), the xy box ``lo``, ``hi`` (2,), the bins' ``size`` (2,) and their number per side ``nb``
     (about one face, or 16 points, a bin); None when no face is left."""
     v = np.asarray(vertices, dtype=np.float64)
-    tri = v[np.asarray(faces, dtype=np.int64).reshape(-1, 3)]
-    if len(tri) == 0:
-        return None
-    e1, e2 = tri[:, 1, :2] - tri[:, 0, :2], tri[:, 2, :2] - tri[:, 0, :2]
-    tri = tri[e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] != 0]    # faces seen edge-on hold no point
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    x, y = v[:, 0], v[:, 1]
+    x0, y0 = x[f[:, 0]], y[f[:, 0]]
+    seen = (x[f[:, 1]] - x0) * (y[f[:, 2]] - y0) - (y[f[:, 1]] - y0) * (x[f[:, 2]] - x0) != 0
+    tri = v[f[seen]]                                            # faces seen edge-on hold no point
     if len(tri) == 0:
         return None
     # per coordinate: a reduction over axis 0 of the (3m, 2) corners is ~10x slower (strided)
     lo = np.array([tri[:, :, 0].min(), tri[:, :, 1].min()])
     hi = np.array([tri[:, :, 0].max(), tri[:, :, 1].max()])
-    nb = int(np.clip(np.sqrt(max(len(tri), n_points / 16)), 1, 1024))
+    nb = n_bins(len(tri), n_points)
     return tri, lo, hi, np.maximum(hi - lo, 1e-300) / nb, nb
+
+
+def n_bins(n_faces: int, n_points: int) -> int:
+    """Bins per side of the xy grid :func:`crossing_number` bins ``n_faces`` faces on for
+    ``n_points`` points: about one face, or 16 points, a bin, at most 1024."""
+    return int(np.clip(np.sqrt(max(n_faces, n_points / 16)), 1, 1024))
 
 
 def _bin_faces(tri: np.ndarray, lo: np.ndarray, size: np.ndarray, nb: int) -> tuple[np.ndarray, np.ndarray]:

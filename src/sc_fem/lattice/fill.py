@@ -13,7 +13,7 @@ import numpy as np
 from .gridcut import cut_by_grid
 from .topology import mark_cells, unique_cells, voxel_index
 from .moments import FULL, box_moments, column_moments
-from ..geometry.cellwinding import cell_winding, sub_offsets
+from ..geometry.cellwinding import CellWinding, sub_offsets
 from ..geometry.inside import boundary_cone
 from ..geometry.rays import crossing_number
 from ..geometry.sampling import Samples, volume_samples
@@ -69,7 +69,8 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
     # one cone for every call below: the parts' own when every part is solid; closed: crossings alone
     cone = ((parts.cone if parts.cone is not None and solid_faces.all() else boundary_cone(vertices, sf))
             if leaky_solids else (np.zeros((0, 3)), np.zeros((0, 3), np.int64)))
-    w_free = cell_winding(vertices, sf, free, origin, pitch, 1, cone)[:, 0]
+    winding = CellWinding(vertices, sf, origin, pitch, cone)       # set up once for the free and the cut cells
+    w_free = winding(free, 1)[:, 0]
     interior, w_interior = free[w_free > 0.5], w_free[w_free > 0.5]
 
     tight_part = solid_part & parts.watertight
@@ -130,7 +131,7 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
     cells.append(interior)
     if leaky.any():
         bcells = np.argwhere(mark_cells(np.zeros(occupied.shape, dtype=bool), surf.points, origin, pitch, leaky))
-        inside = cell_winding(vertices, sf, bcells, origin, pitch, n_sub, cone).ravel() >= 1   # a leaky solid part: its cone
+        inside = winding(bcells, n_sub).ravel() >= 1           # a leaky solid part: its cone
         cell, sub = np.divmod(np.flatnonzero(inside), len(offs))
         pts = bcells[cell].astype(np.float64)                   # the inside sub-cubes' centres, in place:
         pts += offs[sub]                                        # origin + pitch * (cell + offset)
