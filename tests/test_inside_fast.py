@@ -211,3 +211,14 @@ def test_position_ids_are_np_uniques_inverse(rng):
     np.testing.assert_array_equal(ids, np.unique(v, axis=0, return_inverse=True)[1].reshape(-1))
     assert ids[-1] == ids[-2] and ids.max() + 1 < len(v)
     assert position_ids(np.zeros((0, 3))).shape == (0,)
+
+
+def test_row_norms_are_numpys_norms_bit_for_bit(rng):
+    """The column-wise row norms the sampler uses: the same numbers as ``np.linalg.norm(axis=1)``
+    over 16 orders of magnitude, zeros, infinities and NaN included."""
+    from sc_fem.geometry.sampling import row_norms
+
+    d = rng.standard_normal((100_000, 3)) * 10.0 ** rng.uniform(-8, 8, (100_000, 1))
+    d[:10] = 0.0
+    d[10, 1], d[11, 2] = np.inf, np.nan
+    np.testing.assert_array_equal(row_norms(d), np.linalg.norm(d, axis=1))

@@ -20,6 +20,7 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse import csgraph
 
+from .sampling import row_norms
 from .rays import crossing_number
 
 CLOSED_THRESHOLD = 0.75
@@ -328,7 +329,7 @@ def mesh_parts(vertices: np.ndarray, faces: np.ndarray) -> MeshParts:
     k = int(label.max()) + 1
     tri = vertices[faces]
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    area2 = np.linalg.norm(cross, axis=1)
+    area2 = row_norms(cross)
     # orient watertight parts outward (signed volume > 0)
     signed = np.bincount(label, weights=np.einsum("ij,ij->i", tri[:, 0], cross), minlength=k)
     key, inv, net = _edge_balance(wfaces)

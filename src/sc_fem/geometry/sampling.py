@@ -69,11 +69,17 @@ class Samples:
                        np.concatenate([r for _, r in given]).astype(np.int64) if given else None)
 
 
+def row_norms(d: np.ndarray) -> np.ndarray:
+    """``np.linalg.norm(d, axis=1)`` of ``d`` (n, 3), the same numbers (the squares summed in the same
+    order), ~3x faster: column by column instead of a reduction over the rows' 3 entries."""
+    return np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])
+
+
 def _apex_frame(vertices: np.ndarray, faces: np.ndarray):
     """Each face's apex (the corner opposite its shortest edge, the first of equal ones) and the
     next two corners, each (m, 3), model units."""
     P = [vertices[faces[:, k]] for k in range(3)]
-    opp = np.stack([np.linalg.norm(P[(k + 2) % 3] - P[(k + 1) % 3], axis=1) for k in range(3)], axis=1)
+    opp = np.stack([row_norms(P[(k + 2) % 3] - P[(k + 1) % 3]) for k in range(3)], axis=1)
     a = np.argmin(opp, axis=1)[:, None]                               # edge opposite vertex k
     rolled = np.take_along_axis(faces, (a + np.arange(3)) % 3, axis=1)
     return tuple(vertices[rolled[:, j]] for j in range(3))
@@ -86,9 +92,9 @@ def grid_counts(vertices: np.ndarray, faces: np.ndarray, spacing: float) -> tupl
 
 def _counts(A: np.ndarray, B: np.ndarray, C: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:
     """:func:`grid_counts` of the faces' apex frames."""
-    long_edge = np.maximum(np.linalg.norm(B - A, axis=1), np.linalg.norm(C - A, axis=1))
+    long_edge = np.maximum(row_norms(B - A), row_norms(C - A))
     k_s = np.maximum(1, np.ceil(long_edge / spacing)).astype(np.int64)
-    k_t = np.maximum(1, np.ceil(np.linalg.norm(C - B, axis=1) / spacing)).astype(np.int64)
+    k_t = np.maximum(1, np.ceil(row_norms(C - B) / spacing)).astype(np.int64)
     return k_s, k_t
 
 
@@ -151,8 +157,8 @@ def surface_grid(vertices: np.ndarray, faces: np.ndarray, spacing: float) -> Sur
     MeshError
         Every face has zero area.
     """
-    area = 0.5 * np.linalg.norm(np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]],
-                                         vertices[faces[:, 2]] - vertices[faces[:, 0]]), axis=1)
+    area = 0.5 * row_norms(np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]],
+                                    vertices[faces[:, 2]] - vertices[faces[:, 0]]))
     fidx = np.flatnonzero(area > 1e-12 * spacing**2)
     if len(fidx) == 0:
         raise MeshError("every face has zero area: nothing to sample")
