@@ -211,6 +211,11 @@ def test_position_ids_are_np_uniques_inverse(rng):
     np.testing.assert_array_equal(ids, np.unique(v, axis=0, return_inverse=True)[1].reshape(-1))
     assert ids[-1] == ids[-2] and ids.max() + 1 < len(v)
     assert position_ids(np.zeros((0, 3))).shape == (0,)
+    scan = rng.random((5000, 3))                                                # distinct first values, but
+    scan[::7, 0] = scan[::7, 0][0]                                              # one long run of equal ones,
+    scan = np.vstack([scan, scan[::3], scan[:50] * [1, 0, 1]])                  # duplicates and new ties
+    for pts in (scan, scan[:, :2], scan[:, :1]):
+        np.testing.assert_array_equal(position_ids(pts), np.unique(pts, axis=0, return_inverse=True)[1].reshape(-1))
 
 
 def test_row_norms_are_numpys_norms_bit_for_bit(rng):

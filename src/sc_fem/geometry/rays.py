@@ -128,8 +128,10 @@ def binned_faces(vertices: np.ndarray, faces: np.ndarray,
 
 def n_bins(n_faces: int, n_points: int) -> int:
     """Bins per side of the xy grid :func:`crossing_number` bins ``n_faces`` faces on for
-    ``n_points`` points: about one face, or 16 points, a bin, at most 1024."""
-    return int(np.clip(np.sqrt(max(n_faces, n_points / 16)), 1, 1024))
+    ``n_points`` points: about one face, or 16 points, a bin, at most 1024; with few points, no
+    more than 16 bins a point (binning the faces costs more than the points' tests: the parts'
+    96 probes of the bunny's 69,674 faces bin them on 39^2 bins, not 263^2)."""
+    return int(np.clip(np.sqrt(max(min(n_faces, 16 * n_points), n_points / 16)), 1, 1024))
 
 
 def _bin_faces(tri: np.ndarray, lo: np.ndarray, size: np.ndarray, nb: int) -> tuple[np.ndarray, np.ndarray]:

@@ -74,8 +74,8 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
     interior, w_interior = free[w_free > 0.5], w_free[w_free > 0.5]
 
     tight_part = solid_part & parts.watertight
-    on_solid = solid_part[parts.label[surf.face]]
-    tight = tight_part[parts.label[surf.face]]
+    on_solid = solid_faces[surf.face]
+    tight = tight_part[parts.label][surf.face]
     leaky = on_solid & ~tight
     offs = sub_offsets(n_sub)
     pieces, cells = [], []
@@ -133,7 +133,7 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
         bcells = np.argwhere(mark_cells(np.zeros(occupied.shape, dtype=bool), surf.points, origin, pitch, leaky))
         inside = winding(bcells, n_sub).ravel() >= 1           # a leaky solid part: its cone
         cell, sub = np.divmod(np.flatnonzero(inside), len(offs))
-        pts = bcells[cell].astype(np.float64)                   # the inside sub-cubes' centres, in place:
+        pts = bcells.astype(np.float64)[cell]                   # the inside sub-cubes' centres, in place:
         pts += offs[sub]                                        # origin + pitch * (cell + offset)
         pts *= pitch
         pts += origin
