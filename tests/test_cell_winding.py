@@ -233,6 +233,20 @@ def test_unique_keys_is_np_unique(size, rng):
 
 
 @pytest.mark.parametrize("kernel", ["numpy"] + (["numba"] if numba_available() else []))
+def test_voxel_keys_are_the_linear_index_of_the_cells_a_loop_finds(kernel, rng):
+    """Points inside, on the faces of and outside a grid (clipped into it), in mm off the origin."""
+    from sc_fem.lattice.topology import voxel_keys
+
+    origin, pitch, dims = np.array([5.0e5, -3.0e4, 12.0]), 2.5, np.array([7, 5, 9])
+    p = origin + pitch * (rng.random((6000, 3)) * (dims + 2) - 1)
+    p[:40] = origin + pitch * rng.integers(0, 6, (40, 3))                   # on grid planes
+    got = voxel_keys(p, origin, pitch, dims, kernel=kernel)
+    ref = [int(np.ravel_multi_index(voxel_index(p[i:i + 1], origin, pitch, dims, kernel="numpy")[0], dims))
+           for i in range(len(p))]                                              # the loop oracle
+    np.testing.assert_array_equal(got, ref)
+
+
+@pytest.mark.parametrize("kernel", ["numpy"] + (["numba"] if numba_available() else []))
 def test_mark_cells_marks_each_selected_points_cell_as_a_loop_does(kernel, rng):
     """Points on and off the grid (clipped into it), on cell faces, with a selection: the same grid
     as marking point by point with :func:`voxel_index` (the oracle)."""

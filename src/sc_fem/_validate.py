@@ -65,21 +65,26 @@ def check_material(youngs: np.ndarray, poisson: np.ndarray, density: np.ndarray 
                    where: str = "") -> None:
     """Raise :class:`MaterialError` naming the first offending value."""
     where = f" ({where})" if where else ""
-    youngs = np.asarray(youngs, dtype=float)
-    poisson = np.asarray(poisson, dtype=float)
-    if youngs.size and not np.all(np.isfinite(youngs)):
-        raise MaterialError(f"Young's modulus E must be finite{where}")
-    if youngs.size and np.any(youngs <= 0):
-        raise MaterialError(f"Young's modulus E must be > 0 Pa{where}, got min {youngs.min():g}")
-    if poisson.size and not np.all(np.isfinite(poisson)):
-        raise MaterialError(f"Poisson's ratio nu must be finite{where}")
-    if poisson.size and (np.any(poisson <= -1.0) or np.any(poisson >= 0.5)):
-        lo, hi = poisson.min(), poisson.max()
-        raise MaterialError(f"Poisson's ratio nu must lie in (-1, 0.5){where}, got range [{lo:g}, {hi:g}]")
-    if density is not None:
-        density = np.asarray(density, dtype=float)
-        if density.size and (not np.all(np.isfinite(density)) or np.any(density <= 0)):
-            raise MaterialError(f"density must be > 0 kg/m^3 and finite{where}, got min {np.nanmin(density):g}")
+    # from each array's range alone (a NaN makes both ends NaN): two passes, not a mask per test
+    if (r := _range(youngs)) is not None:
+        if not np.all(np.isfinite(r)):
+            raise MaterialError(f"Young's modulus E must be finite{where}")
+        if r[0] <= 0:
+            raise MaterialError(f"Young's modulus E must be > 0 Pa{where}, got min {r[0]:g}")
+    if (r := _range(poisson)) is not None:
+        if not np.all(np.isfinite(r)):
+            raise MaterialError(f"Poisson's ratio nu must be finite{where}")
+        if r[0] <= -1.0 or r[1] >= 0.5:
+            raise MaterialError(f"Poisson's ratio nu must lie in (-1, 0.5){where}, got range [{r[0]:g}, {r[1]:g}]")
+    if density is not None and (r := _range(density)) is not None and (not np.all(np.isfinite(r)) or r[0] <= 0):
+        raise MaterialError(f"density must be > 0 kg/m^3 and finite{where}, "
+                            f"got min {np.nanmin(np.asarray(density, dtype=float)):g}")
+
+
+def _range(values: Any) -> tuple[float, float] | None:
+    """Smallest and largest of ``values`` (both NaN when any is NaN), None when there are none."""
+    a = np.asarray(values, dtype=float)
+    return (float(a.min()), float(a.max())) if a.size else None
 
 
 def as_indices(value: Any, n: int, name: str, *, allow_mask: bool = False, allow_empty: bool = True,

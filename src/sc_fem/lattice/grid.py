@@ -10,8 +10,7 @@ from scipy.spatial import cKDTree
 from .._validate import positive_int, positive_scalar
 from ..errors import InputError, MaterialError, ResolutionError
 from ..geometry.sampling import grid_counts
-from .cubes import voxel_index
-from .topology import unique_keys
+from .topology import unique_keys, voxel_keys
 from .options import DEFAULT_RESOLUTION, MAX_RESOLUTION, check_resolution
 
 SPACING_FRACTION = 0.125   # default sample spacing = pitch / 8
@@ -138,7 +137,7 @@ def hash_samples(points: np.ndarray, masses: np.ndarray, values: dict[str, np.nd
     averages : dict of name -> ndarray (k,)
         Mass-weighted average of each value per voxel.
     """
-    lin = np.ravel_multi_index(voxel_index(points, origin, pitch, dims).T, dims)
+    lin = voxel_keys(points, origin, pitch, dims)
     n_p = 1 if piece is None or not len(piece) else int(piece.max()) + 1
     if n_p > 1:
         lin = lin * n_p + piece

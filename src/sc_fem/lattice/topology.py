@@ -53,6 +53,23 @@ def voxel_index(points: np.ndarray, origin: np.ndarray, pitch: float, dims: np.n
     return np.clip(np.floor((p - origin) / pitch).astype(np.int64), 0, hi)
 
 
+def voxel_keys(points: np.ndarray, origin: np.ndarray, pitch: float, dims: np.ndarray,
+               kernel: str = "auto") -> np.ndarray:
+    """The C-order linear index of each point's cell, shape (n,) int64:
+    ``np.ravel_multi_index(voxel_index(points, origin, pitch, dims).T, dims)`` without the (n, 3)
+    cells, compiled (:mod:`sc_fem.lattice.topology_jit`, with numba, from
+    :data:`VOXEL_INDEX_COMPILED_FROM` points) or that numpy line; the same keys."""
+    dims = np.asarray(dims, dtype=np.int64)
+    p = np.asarray(points)
+    compiled = choose_kernel(kernel) == "numba" and (kernel == "numba" or len(p) >= VOXEL_INDEX_COMPILED_FROM)
+    if compiled and p.ndim == 2 and p.shape[1] == 3:
+        out = np.empty(len(p), np.int64)
+        topology_jit.keys(np.ascontiguousarray(p, dtype=np.float64), np.asarray(origin, dtype=np.float64).reshape(3),
+                          float(pitch), dims - 1, out)
+        return out
+    return np.ravel_multi_index(voxel_index(p, origin, pitch, dims, kernel="numpy").T, dims)
+
+
 def mark_cells(grid: np.ndarray, points: np.ndarray, origin: np.ndarray, pitch: float,
                select: np.ndarray | None = None, kernel: str = "auto") -> np.ndarray:
     """Set ``grid[cell] = True`` for the cell of every point (as :func:`voxel_index` finds it), in place.

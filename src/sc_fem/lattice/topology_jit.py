@@ -42,6 +42,20 @@ def _cell_at(points, i, origin, pitch, hi, s0, s1):  # pragma: no cover - compil
 _cell = compiled(_cell_at)
 
 
+def _keys_py(points, origin, pitch, hi, out):  # pragma: no cover - compiled
+    """``out[i]`` = the C-order linear index of the cell of ``points[i]`` (n, 3) in a grid of shape
+    ``hi + 1``, the cell as :func:`_cells_py` finds it; chunks of :data:`MARK_CHUNK` on the cores."""
+    n = points.shape[0]
+    s0, s1 = (hi[1] + 1) * (hi[2] + 1), hi[2] + 1
+    for b in prange((n + MARK_CHUNK - 1) // MARK_CHUNK):
+        for i in range(b * MARK_CHUNK, min(n, (b + 1) * MARK_CHUNK)):
+            out[i] = _cell(points, i, origin, pitch, hi, s0, s1)
+
+
+keys = compiled_parallel(_keys_py)
+"""The compiled :func:`_keys_py` (None without numba)."""
+
+
 def _mark_py(points, origin, pitch, hi, select, grid):  # pragma: no cover - compiled
     """``grid[cell of points[i]] = True`` for every ``i`` with ``select[i]`` (all when ``select`` is
     empty), the cell as :func:`_cells_py` finds it, into the flat C-ordered ``grid`` (its shape
