@@ -44,6 +44,12 @@ def compiled(fn):
     return numba.njit(cache=True, nogil=True)(fn) if numba is not None else None
 
 
+def compiled_inline(fn):
+    """``fn`` compiled by numba and inlined into the compiled kernels that call it (a helper of an
+    inner loop, where a call would cost more than its body), or None without numba."""
+    return numba.njit(cache=True, nogil=True, inline="always")(fn) if numba is not None else None
+
+
 def compiled_parallel(fn):
     """``fn`` compiled by numba with its :data:`prange` loops split over the cores (cached on disk),
     or None without numba."""

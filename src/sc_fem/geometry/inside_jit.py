@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._jit import compiled, compiled_parallel, prange
+from .._jit import compiled, compiled_inline, compiled_parallel, prange
 
 
 def _edge_sign_py(ax, ay, bx, by, px, py):  # pragma: no cover - compiled
@@ -60,6 +60,46 @@ def _face_under_py(t, px, py):  # pragma: no cover - compiled
 _face_under = compiled(_face_under_py)
 
 
+def _ray_crossings_py(tri, start, bin_face, b, px, py, zs, tops, signs):  # pragma: no cover - compiled
+    """The crossings of the ray through ``(px, py)`` (bin ``b``): each one's height, the top of its
+    face and its sign into ``zs``, ``tops``, ``signs``; their number, or -1 past :data:`RAY_CACHE`."""
+    cached = 0
+    for k in range(start[b], start[b + 1]):
+        t = tri[bin_face[k]]
+        z, s = _face_under(t, px, py)
+        if s != 0:
+            if cached == RAY_CACHE:
+                return -1
+            zs[cached], tops[cached], signs[cached] = z, max(t[0, 2], t[1, 2], t[2, 2]), s
+            cached += 1
+    return cached
+
+
+_ray_crossings = compiled_inline(_ray_crossings_py)
+
+
+def _crossings_above_py(tri, start, bin_face, b, px, py, pz, cached, zs, tops, signs):  # pragma: no cover - compiled
+    """Signed crossings above ``(px, py, pz)``: from the ray's ``cached`` crossings (those whose
+    face's top and height exceed ``pz``), or, with ``cached < 0``, face by face over bin ``b`` --
+    the same faces either way."""
+    acc = 0.0
+    if cached >= 0:
+        for j in range(cached):
+            if tops[j] > pz and zs[j] > pz:
+                acc += signs[j]
+        return acc
+    for k in range(start[b], start[b + 1]):
+        t = tri[bin_face[k]]
+        if max(t[0, 2], t[1, 2], t[2, 2]) > pz:
+            z, s = _face_under(t, px, py)
+            if s != 0 and z > pz:
+                acc += s
+    return acc
+
+
+_crossings_above = compiled_inline(_crossings_above_py)
+
+
 def _crossings_py(q, tri, lo, hi, size, nb, start, bin_face, out):  # pragma: no cover - compiled
     """Signed crossings above each point ``q`` (n, 3) of the binned faces ``tri`` (m, 3, 3), into ``out`` (n,).
 
@@ -83,29 +123,10 @@ def _crossings_py(q, tri, lo, hi, size, nb, start, bin_face, out):  # pragma: no
             b = bx * nb + by
             shared = i + 1 < n and q[i + 1, 0] == px and q[i + 1, 1] == py
             if not (cached >= 0 and px == cx and py == cy) and shared:
-                cached, cx, cy = 0, px, py          # the ray through this point and the next: all its crossings
-                for k in range(start[b], start[b + 1]):
-                    t = tri[bin_face[k]]
-                    z, s = _face_under(t, px, py)
-                    if s != 0:
-                        if cached == RAY_CACHE:
-                            cached = -1
-                            break
-                        zs[cached], tops[cached], signs[cached] = z, max(t[0, 2], t[1, 2], t[2, 2]), s
-                        cached += 1
-            acc = 0.0
-            if cached >= 0 and px == cx and py == cy:
-                for j in range(cached):
-                    if tops[j] > pz and zs[j] > pz:
-                        acc += signs[j]
-            else:
-                for k in range(start[b], start[b + 1]):
-                    t = tri[bin_face[k]]
-                    if max(t[0, 2], t[1, 2], t[2, 2]) > pz:
-                        z, s = _face_under(t, px, py)
-                        if s != 0 and z > pz:
-                            acc += s
-            out[i] = acc
+                cx, cy = px, py                     # the ray through this point and the next: all its crossings
+                cached = _ray_crossings(tri, start, bin_face, b, px, py, zs, tops, signs)
+            on_ray = cached if cached >= 0 and px == cx and py == cy else -1
+            out[i] = _crossings_above(tri, start, bin_face, b, px, py, pz, on_ray, zs, tops, signs)
 
 
 crossings = compiled_parallel(_crossings_py)
@@ -136,33 +157,13 @@ def _column_crossings_py(cells, col_start, perm, o, pitch, sub, sub_index, tri, 
                 if fx < 0 or fy < 0 or px > hi[0] or py > hi[1]:
                     continue
                 b = min(int(fx), nb - 1) * nb + min(int(fy), nb - 1)   # x = hi may round to bin nb
-                cached = 0
-                for k in range(start[b], start[b + 1]):
-                    t = tri[bin_face[k]]
-                    z, s = _face_under(t, px, py)
-                    if s != 0:
-                        if cached == RAY_CACHE:
-                            cached = -1
-                            break
-                        zs[cached], tops[cached], signs[cached] = z, max(t[0, 2], t[1, 2], t[2, 2]), s
-                        cached += 1
+                cached = _ray_crossings(tri, start, bin_face, b, px, py, zs, tops, signs)
                 for r in range(col_start[c], col_start[c + 1]):
                     i = perm[r]
                     for kz in range(n_sub):
                         pz = o[2] + pitch * (cells[i, 2] + sub[kz])
-                        acc = 0.0
-                        if cached >= 0:
-                            for j in range(cached):
-                                if tops[j] > pz and zs[j] > pz:
-                                    acc += signs[j]
-                        else:
-                            for k in range(start[b], start[b + 1]):
-                                t = tri[bin_face[k]]
-                                if max(t[0, 2], t[1, 2], t[2, 2]) > pz:
-                                    z, s = _face_under(t, px, py)
-                                    if s != 0 and z > pz:
-                                        acc += s
-                        out[i, sub_index[a, b_, kz]] = acc
+                        out[i, sub_index[a, b_, kz]] = _crossings_above(tri, start, bin_face, b, px, py, pz, cached,
+                                                                        zs, tops, signs)
 
 
 column_crossings = compiled_parallel(_column_crossings_py)
