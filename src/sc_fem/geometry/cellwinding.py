@@ -89,16 +89,17 @@ def _cone_certain(closed_v: np.ndarray, apex: np.ndarray, cone: np.ndarray, cent
                                                             axis=1), minlength=len(apex))
     radius = np.zeros(len(apex))
     np.maximum.at(radius, piece, np.linalg.norm(tri[:, :2] - apex[piece][:, None, :], axis=2).max(axis=1))
-    certain = np.zeros(len(centres), dtype=bool)
     if choose_kernel(kernel) == "numba":
         bound = np.empty(len(centres))
         inside_jit.area_bounds(np.ascontiguousarray(centres, dtype=np.float64), np.ascontiguousarray(apex), radius,
                                area, float(half_diagonal), bound)
-        certain[:] = bound < CONE_CERTAIN
-    for s in range(0, len(centres) if choose_kernel(kernel) == "numpy" else 0, 1 << 16):   # chunks of cells x pieces
-        d = np.linalg.norm(centres[s:s + (1 << 16), None, :] - apex[None], axis=2) - radius - half_diagonal
-        bound = np.sum(np.where(d > 0, area / np.where(d > 0, d, 1.0) ** 2, np.inf), axis=1) / (4 * np.pi)
-        certain[s:s + (1 << 16)] = bound < CONE_CERTAIN
+    else:
+        bound = np.empty(len(centres))
+        for s in range(0, len(centres), 1 << 16):        # chunks of cells x pieces (bounded memory)
+            d = np.linalg.norm(centres[s:s + (1 << 16), None, :] - apex[None], axis=2) - radius - half_diagonal
+            bound[s:s + (1 << 16)] = np.sum(np.where(d > 0, area / np.where(d > 0, d, 1.0) ** 2, np.inf),
+                                            axis=1) / (4 * np.pi)
+    certain = bound < CONE_CERTAIN
     rest = np.flatnonzero(~certain)
     if len(rest) == 0 or len(rest) * len(cone) > RIM_PAIRS or half_diagonal == 0:   # 0: step 2 is libigl's value
         return certain
@@ -143,8 +144,7 @@ class CellWinding:
         self.v = np.asarray(vertices, dtype=np.float64)
         self.f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
         self.origin, self.pitch = np.asarray(origin, dtype=np.float64).reshape(3), float(pitch)
-        self.apex, self.cone = boundary_cone(self.v, self.f) if cone is None and len(self.f) else (
-            (np.zeros((0, 3)), np.zeros((0, 3), np.int64)) if cone is None else cone)
+        self.apex, self.cone = boundary_cone(self.v, self.f) if cone is None else cone
         self.closed_v = np.vstack([self.v, self.apex])
         self.compiled = choose_kernel(kernel) == "numba"
         self._binned: dict = {}                  # axis -> rotated faces and box; (axis, n_bins) -> bins
