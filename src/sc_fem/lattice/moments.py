@@ -119,12 +119,16 @@ def column_moments(pieces: np.ndarray, origin: np.ndarray, pitch: float, dims: n
     """
     dims = np.asarray(dims, dtype=np.int64)
     idx = voxel_index(pieces.mean(axis=1), origin, pitch, dims)
-    inner, column = piece_integrals(pieces, idx, origin, pitch)
     lin = np.ravel_multi_index(idx.T, dims)
     order = np.argsort(lin, kind="stable")
     lin_s = lin[order]
-    cum_in = np.vstack([np.zeros((1, 27)), np.cumsum(inner[order], axis=0)])
-    cum_col = np.vstack([np.zeros((1, 9)), np.cumsum(column[order], axis=0)])
+    # the pieces in cell order, integrated there (each piece on its own: the same numbers), and summed
+    # into buffers with a zero row first (no copy of the (pieces, 27) integrals in order, or of their sums)
+    inner, column = piece_integrals(pieces[order], idx[order], origin, pitch)
+    cum_in, cum_col = np.zeros((len(inner) + 1, 27)), np.zeros((len(column) + 1, 9))
+    np.cumsum(inner, axis=0, out=cum_in[1:])
+    np.cumsum(column, axis=0, out=cum_col[1:])
+    del inner, column
     q = np.ravel_multi_index(np.asarray(cells).T, dims)
     column_end = (q // dims[2] + 1) * dims[2]
     lo, hi = np.searchsorted(lin_s, q, "left"), np.searchsorted(lin_s, q, "right")
