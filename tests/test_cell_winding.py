@@ -13,7 +13,8 @@ import sc_fem
 import shapes
 from sc_fem._jit import available as numba_available
 from sc_fem.geometry import inside_jit
-from sc_fem.geometry.cellwinding import CONE_CERTAIN, _cone_certain, _rim_bounds, cell_winding, sub_offsets
+from sc_fem.geometry.cellwinding import CONE_CERTAIN, _cone_certain, _rim_bounds, cell_winding
+from sc_fem.geometry.sampling import sub_offsets
 from sc_fem.geometry.inside import _fast_winding_number, boundary_cone, winding_number
 from sc_fem.geometry.rays import crossing_number
 from sc_fem.lattice.grid import grid_for

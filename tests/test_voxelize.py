@@ -328,3 +328,22 @@ def test_a_field_given_twice_with_two_values_is_refused():
         sc_fem.voxelize("builtin:beam", VoxelOptions(resolution=8), resolution=12)
     same = sc_fem.voxelize("builtin:beam", VoxelOptions(resolution=8), resolution=8, fill="solid")
     assert same.n_cubes == sc_fem.voxelize("builtin:beam", resolution=8, fill="solid").n_cubes
+
+
+def test_subset_keeping_every_cube_is_the_model_a_rebuild_would_give():
+    """``subset`` of every cube returns the model itself; a rebuild from the same cells gives the same
+    nodes, hexes and components (two bodies, the toy truck), and dropping one cube still rebuilds."""
+    import shapes
+    from sc_fem.lattice.cubes import CubeModel
+
+    m = sc_fem.voxelize(shapes.toy_truck(), resolution=24, keep="all")
+    assert m.subset(np.ones(m.n_cubes, bool)) is m
+    again = CubeModel.from_cells(m.cells, origin=m.origin, pitch=m.pitch, scale=m.scale, dims=m.dims, mass=m.mass,
+                                 youngs=m.youngs, poisson=m.poisson, density=m.density, fraction=m.fraction,
+                                 stiffness=m.stiffness, moments=m.moments, connectivity=m.connectivity,
+                                 info=dict(m.info), piece=m.piece, sites=m.sites, site_piece=m.site_piece)
+    for name in ("cells", "nodes", "hexes", "component", "piece", "mass", "moments"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(m, name))
+    keep = np.ones(m.n_cubes, bool)
+    keep[0] = False
+    assert m.subset(keep).n_cubes == m.n_cubes - 1

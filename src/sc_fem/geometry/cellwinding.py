@@ -14,7 +14,8 @@ import numpy as np
 from . import inside_jit
 from .._jit import choose_kernel
 from .inside import _fast_winding_number, _ray_axis, boundary_cone, cone_winding_number
-from .rays import binned_faces, crossing_number, n_bins
+from .rays import bin_grid, crossing_faces, crossing_number
+from .sampling import sub_offsets
 
 CONE_CERTAIN = 0.4
 """:func:`cell_winding` skips the cone's winding number in a cell where a bound says it is below this
@@ -29,11 +30,6 @@ RIM_PAIRS = 1 << 25
 """The second bound of :func:`_cone_certain` runs up to this many (cell, cone triangle) pairs (0.12 s
 for 32,768 cells and 1,024 cone triangles, compiled, one run);
 past that (a large hole near most cells), libigl is evaluated wherever the first bound leaves it."""
-
-
-def sub_offsets(n_sub: int) -> np.ndarray:
-    """Centres of the ``n_sub^3`` sub-cubes of a unit cube, shape (n_sub^3, 3), z fastest."""
-    return (np.stack(np.meshgrid(*[np.arange(n_sub)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5) / n_sub
 
 
 def _rim_bounds(centres: np.ndarray, tri: np.ndarray, half_diagonal: float,
@@ -188,12 +184,11 @@ class CellWinding:
         of the sub-cube ``(a, b, k)`` in that frame."""
         if axis not in self._binned:             # the rotated faces (with their box), then their bins by size
             order = [(axis + 1) % 3, (axis + 2) % 3, axis]
-            self._binned[axis] = binned_faces(self.closed_v[:, order], np.vstack([self.f, self.cone]), 0)
+            self._binned[axis] = crossing_faces(self.closed_v[:, order], np.vstack([self.f, self.cone]))
         if self._binned[axis] is None:
             return
-        tri, lo, hi = self._binned[axis][:3]
-        nb = n_bins(len(tri), out.size)
-        size = np.maximum(hi - lo, 1e-300) / nb
+        tri, lo, hi = self._binned[axis]
+        size, nb = bin_grid(lo, hi, len(tri), out.size)
         if (axis, nb) not in self._binned:
             self._binned[axis, nb] = inside_jit.bin_faces(tri, lo, size, nb)
         start, bin_face = self._binned[axis, nb]

@@ -183,6 +183,8 @@ def _ray_axis(vertices: np.ndarray, faces: np.ndarray, cone: np.ndarray, n_point
     used[faces.ravel()] = True
     used[cone.ravel()] = True
     box = np.ptp(vertices[used], axis=0)                               # the corners' box
+    # the bins crossing_number uses for many points (n_bins without its few-points cap): the estimate
+    # stays as conservative for a handful of probes as for a grid's points
     nb = float(np.clip(np.sqrt(max(len(faces) + len(cone), n_points / 16)), 1, 1024))
     cell = np.maximum(box, 1e-300) / nb
     pairs = [float(np.sum((ext[:, (a + 1) % 3] / cell[(a + 1) % 3] + 1) * (ext[:, (a + 2) % 3] / cell[(a + 2) % 3] + 1)))

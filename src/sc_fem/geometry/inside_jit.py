@@ -237,7 +237,7 @@ def _rim_bounds_py(c, lo, hi, a, e, h, box, grad):  # pragma: no cover - compile
     """For each centre ``c`` (k, 3): the distance to the nearest box ``[lo, hi]`` (f, 3) of a cone
     triangle into ``box`` (k,), and ``1/(4 pi) sum over rim edges (a, a + e) of |e| / (distance - h)^2``
     (inf when an edge comes within ``h``) into ``grad`` (k,) -- the numpy path of
-    :func:`sc_fem.geometry.inside._rim_bounds`, with the same arithmetic."""
+    :func:`sc_fem.geometry.cellwinding._rim_bounds`, with the same arithmetic."""
     for i in prange(c.shape[0]):
         near = np.inf
         g = 0.0

@@ -68,10 +68,11 @@ def crossing_number(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray,
     """
     q = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     out = np.zeros(len(q))
-    binned = binned_faces(vertices, faces, len(q))
-    if binned is None or len(q) == 0:
+    faces_box = crossing_faces(vertices, faces)
+    if faces_box is None or len(q) == 0:
         return out
-    tri, lo, hi, size, nb = binned
+    tri, lo, hi = faces_box
+    size, nb = bin_grid(lo, hi, len(tri), len(q))
     if choose_kernel(kernel) == "numba":
         start, bin_face = inside_jit.bin_faces(tri, lo, size, nb)
         inside_jit.crossings(q, tri, lo, hi, size, nb, start, bin_face, out)
@@ -105,12 +106,9 @@ def crossing_number(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray,
     return out
 
 
-def binned_faces(vertices: np.ndarray, faces: np.ndarray,
-                 n_points: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int] | None:
-    """The faces :func:`crossing_number` tests and the xy grid it bins them on, for ``n_points``
-    query points: the faces' corners ``tri`` (m, 3, 3) (those seen edge-on dropped: they hold no
-    point), the xy box ``lo``, ``hi`` (2,), the bins' ``size`` (2,) and their number per side ``nb``
-    (about one face, or 16 points, a bin); None when no face is left."""
+def crossing_faces(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The faces :func:`crossing_number` tests: their corners ``tri`` (m, 3, 3) (those seen edge-on
+    dropped: they hold no point) and their xy box ``lo``, ``hi`` (2,); None when no face is left."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     x, y = v[:, 0], v[:, 1]
@@ -122,8 +120,14 @@ def binned_faces(vertices: np.ndarray, faces: np.ndarray,
     # per coordinate: a reduction over axis 0 of the (3m, 2) corners is ~10x slower (strided)
     lo = np.array([tri[:, :, 0].min(), tri[:, :, 1].min()])
     hi = np.array([tri[:, :, 0].max(), tri[:, :, 1].max()])
-    nb = n_bins(len(tri), n_points)
-    return tri, lo, hi, np.maximum(hi - lo, 1e-300) / nb, nb
+    return tri, lo, hi
+
+
+def bin_grid(lo: np.ndarray, hi: np.ndarray, n_faces: int, n_points: int) -> tuple[np.ndarray, int]:
+    """The xy bins :func:`crossing_number` sorts ``n_faces`` faces (box ``lo``, ``hi`` (2,)) into for
+    ``n_points`` points: the bins' ``size`` (2,) and their number per side (:func:`n_bins`)."""
+    nb = n_bins(n_faces, n_points)
+    return np.maximum(hi - lo, 1e-300) / nb, nb
 
 
 def n_bins(n_faces: int, n_points: int) -> int:

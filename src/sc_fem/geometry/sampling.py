@@ -209,10 +209,14 @@ def surface_random_samples(vertices: np.ndarray, faces: np.ndarray, n: int,
     return Samples(points=pts, weight=np.full(n, total / n), face=face)
 
 
+def sub_offsets(n_sub: int) -> np.ndarray:
+    """Centres of the ``n_sub^3`` sub-cubes of a unit cube, shape (n_sub^3, 3), z fastest."""
+    return (np.stack(np.meshgrid(*[np.arange(n_sub)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5) / n_sub
+
+
 def volume_samples(cells: np.ndarray, origin: np.ndarray, pitch: float) -> Samples:
     """2 x 2 x 2 samples at the sub-cell centres of each cell, each weighing ``pitch^3 / 8``."""
-    sub = (np.stack(np.meshgrid([0.25, 0.75], [0.25, 0.75], [0.25, 0.75], indexing="ij"), -1)
-           .reshape(8, 3))
+    sub = sub_offsets(2)
     pts = np.repeat(np.asarray(cells, dtype=np.float64), 8, axis=0)      # in place: origin + pitch * (cell + sub)
     pts.reshape(-1, 8, 3)[...] += sub
     pts *= pitch

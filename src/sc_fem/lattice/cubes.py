@@ -192,7 +192,6 @@ class CubeModel:
             moments = as_float_array(moments, "moments", (n, 27))
         elif stiffness == "moments":
             raise InputError("stiffness='moments' needs the moments of every cube")
-
         top = np.array([cells[:, d].max() for d in range(3)])   # per axis: ~5x faster than over axis 0
         dims = top + 1 if dims is None else np.asarray(dims, dtype=np.int64)
         if np.any(top >= dims):
@@ -413,13 +412,15 @@ class CubeModel:
         Returns
         -------
         CubeModel
-            The kept cubes with their properties; components relabelled.
+            The kept cubes with their properties; components relabelled (every cube kept: the model).
         """
         mask = np.asarray(mask, dtype=bool)
         if mask.shape != (self.n_cubes,):
             raise InputError(f"mask must have shape ({self.n_cubes},), got {mask.shape}")
         if not mask.any():
             raise InputError("mask selects no cube")
+        if mask.all():                      # immutable: a rebuild would give the same arrays
+            return self
         return CubeModel.from_cells(self.cells[mask], origin=self.origin, pitch=self.pitch, scale=self.scale,
                                     dims=self.dims, mass=self.mass[mask], youngs=self.youngs[mask],
                                     poisson=self.poisson[mask], density=self.density[mask],

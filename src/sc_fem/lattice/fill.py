@@ -13,10 +13,10 @@ import numpy as np
 from .gridcut import cut_by_grid
 from .topology import mark_cells, unique_cells, voxel_index
 from .moments import FULL, box_moments, column_moments
-from ..geometry.cellwinding import CellWinding, sub_offsets
+from ..geometry.cellwinding import CellWinding
 from ..geometry.inside import boundary_cone
 from ..geometry.rays import crossing_number
-from ..geometry.sampling import Samples, volume_samples
+from ..geometry.sampling import Samples, sub_offsets, volume_samples
 
 OVERLAP_SAMPLES_PER_SIDE = 256
 """Overlaps of intersecting parts are sampled with a spacing of 1/256 of the grid's longest side."""

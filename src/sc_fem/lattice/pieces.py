@@ -107,7 +107,7 @@ def _keep(model: CubeModel, keep: str, info: dict) -> CubeModel:
         body_mass = np.bincount(model.piece, weights=model.mass)
         loose = (body_mass < LOOSE_FRACTION * body_mass.max()) & (body_mass > 0)
         mask &= ~loose[model.piece]
-    kept = model if mask.all() else model.subset(mask)        # nothing dropped: no rebuild
+    kept = model.subset(mask)
     dropped = model.n_cubes - kept.n_cubes
     if dropped > kept.n_cubes:
         warnings.warn(
