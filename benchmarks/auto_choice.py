@@ -1,6 +1,6 @@
 """The automatic eigensolver choice against what each solver takes, on shapes users bring, in one run.
 
-Usage: python benchmarks/auto_choice.py [--quick | --larger | --unseen] [--repeat R] [--only NAME ...]
+Usage: python benchmarks/auto_choice.py [--quick | --larger | --unseen | --fresh] [--repeat R] [--only NAME ...]
        python benchmarks/auto_choice.py --from-json out/FILE.json ... [--loo] [--fit]
 
 Per shape and resolution (free-free, 16 pairs: 10 elastic modes and the 6 rigid ones; the held
@@ -19,7 +19,8 @@ machine's load, writes ``benchmarks/out/auto_choice.json`` (``--out``) and ``aut
 (copied to ``docs/``). ``--from-json`` re-predicts stored runs with the current model, and
 ``--fit`` fits LOBPCG's model (:data:`sc_fem.fem.fill.LOBPCG_FILL_MODEL`) to them (:func:`fit`),
 ``--loo`` predicts each shape with the iteration constants fitted without it (:func:`leave_one_out`);
-``--unseen`` times seven shapes no fit has used (:func:`unseen_shapes`).
+``--unseen`` times seven shapes no fit has used (:func:`unseen_shapes`), ``--fresh`` fifteen more
+(:func:`fresh_shapes`).
 """
 
 from __future__ import annotations
@@ -84,6 +85,33 @@ def unseen_shapes():
                                   ("teapot.obj", "teapot", 48)) if (SHARED_MESHES / name).is_file()]
     return out + [("table", "thin", sh.table(), (64,), 1.0), ("portal frame", "thin", sh.portal_frame(), (96,), 1.0),
                   ("slatted chair", "thin", sh.slatted_chair(), (64,), 1.0), ("channel", "thin", sh.channel(), (128,), 1.0)]
+
+
+def fresh_shapes():
+    """A second set of shapes no fit has used (``--fresh``), chosen after every fit and the
+    :func:`unseen_shapes` runs: a rope and a toy bridge (the public meshes no other set takes), two
+    plates 5 mm apart, two boxes 1 mm apart (two parts each), an open sheet, the bunny in millimetres
+    with y up, and shapes of the other sets at resolutions no run has used."""
+    import sc_fem
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+    import shapes as sh
+
+    def scan(name):
+        return sc_fem.load_mesh(str(SHARED_MESHES / name)) if (SHARED_MESHES / name).is_file() else None
+
+    out = [(label, kind, scan(name), (r,), 1.0) for name, label, kind, r in (
+        ("rope.obj", "rope", "thin", 64), ("bridge_toy_openscad.stl", "toy bridge", "thin, many parts", 64),
+        ("dragon_lowres.obj", "dragon", "compact", 64), ("knot.obj", "knot", "compact", 48),
+        ("teapot.obj", "teapot", "compact", 64), ("bunny.obj", "bunny", "compact", 48))]
+    bunny = scan("bunny.obj")
+    if bunny is not None:
+        out.append(("bunny (mm, y up)", "compact", sh.to_millimetres(sh.y_up(bunny)), (36,), 1e-3))
+    return [s for s in out if s[2] is not None] + [
+        ("two plates", "thin, many parts", sh.two_plates(), (96,), 1.0), ("table", "thin", sh.table(), (96,), 1.0),
+        ("portal frame", "thin", sh.portal_frame(), (64,), 1.0), ("slatted chair", "thin", sh.slatted_chair(), (48,), 1.0),
+        ("open sheet", "thin", sh.open_sheet(), (96,), 1.0), ("boxes 1 mm apart", "many parts", sh.near_touching_boxes(), (48,), 1.0),
+        ("channel", "thin", sh.channel(), (96,), 1.0), ("chair", "thin", sc_fem.load_mesh("builtin:chair"), (48,), 1.0)]
 
 
 def _timed(fn, info: dict, parts: list) -> float | None:
@@ -313,7 +341,8 @@ def table(records: list[dict]) -> None:
 
 def _name_points(ax, points: list[tuple[float, float, str, str]]) -> None:
     """Label each ``(x, y, text, colour)`` below and right of its point, on a white ground, each
-    label moved down as far as needed to clear the ones above it that it would overlap."""
+    label moved down as far as needed to clear the ones above it that it would overlap, with a thin
+    line to its point."""
     to_pt = 72.0 / ax.figure.dpi
     placed = []                                               # (left, right, top) of labels, points
     for x, y, text, colour in sorted(points, key=lambda t: -t[1]):
@@ -324,7 +353,8 @@ def _name_points(ax, points: list[tuple[float, float, str, str]]) -> None:
                 top = t2 - 10
         placed.append((left, right, top))
         ax.annotate(text, (x, y), fontsize=7, color=colour, xytext=(6, top - py - 6), textcoords="offset points",
-                    bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.85})
+                    bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.85},
+                    arrowprops={"arrowstyle": "-", "color": colour, "lw": 0.6, "alpha": 0.7, "shrinkA": 0, "shrinkB": 3})
 
 
 def chart(records: list[dict]) -> None:
@@ -341,7 +371,7 @@ def chart(records: list[dict]) -> None:
             outside += [(r[key], r[m], f"{r['shape']} r{r['res']}", "C1" if m == "lobpcg" else "C0")
                         for r in records if r[m] is not None and not 1 / 1.5 <= r[m] / r[key] <= 1.5]
     lim = [0.1, 300]
-    ax.set(xlim=(0.07, 700), ylim=(0.04, 700))
+    ax.set(xlim=(0.04, 700), ylim=(0.04, 700))
     _name_points(ax, outside)
     ax.loglog(lim, lim, "k-", lw=0.8, label="taken = predicted")
     ax.fill_between(lim, [v / 1.5 for v in lim], [v * 1.5 for v in lim], color="0.88", label="within 1.5x")
@@ -364,6 +394,7 @@ def main(argv=None) -> int:
     ap.add_argument("--from-json", nargs="+", help="print the table and chart of earlier runs' JSON files "
                     "with the current model's predictions (from their stored fill), measure nothing")
     ap.add_argument("--unseen", action="store_true", help="the shapes no fit has used (unseen_shapes) instead")
+    ap.add_argument("--fresh", action="store_true", help="a second set no fit has used (fresh_shapes) instead")
     ap.add_argument("--loo", action="store_true", help="with --from-json: leave-one-shape-out predictions of "
                     "LOBPCG (the iteration constants refitted without each shape)")
     ap.add_argument("--fit", action="store_true", help="with --from-json: fit LOBPCG's model to those runs "
@@ -379,8 +410,8 @@ def main(argv=None) -> int:
         records = [repredict(rec) for rec in records]
     else:
         records = [measure(label, kind, mesh, r, scale, args.repeat)
-                   for label, kind, mesh, resolutions, scale in (unseen_shapes() if args.unseen else
-                                                                  shapes(args.quick, args.larger))
+                   for label, kind, mesh, resolutions, scale in (
+                       unseen_shapes() if args.unseen else fresh_shapes() if args.fresh else shapes(args.quick, args.larger))
                    if not args.only or label in args.only for r in resolutions]
         out_path(args.out).write_text(json.dumps(records, indent=1))
     table(records)

@@ -523,3 +523,71 @@ def test_positive_definite_certificate_never_vouches_for_what_the_eigenvalues_re
     b, rep_b = valid_moments(sets, kernel="numpy")
     np.testing.assert_array_equal(a, b)
     np.testing.assert_array_equal(rep_a, rep_b)
+
+
+def _column_moments_whole(pieces, origin, pitch, dims, cells):
+    """:func:`column_moments` as whole-array passes (its form before the row chunks): the oracle."""
+    from sc_fem.lattice.moments import EXPONENTS, piece_integrals
+    from sc_fem.lattice.topology import voxel_index
+
+    dims = np.asarray(dims, dtype=np.int64)
+    idx = voxel_index(pieces.mean(axis=1), origin, pitch, dims)
+    lin = np.ravel_multi_index(idx.T, dims)
+    order = np.argsort(lin, kind="stable")
+    inner, column = piece_integrals(pieces[order], idx[order], origin, pitch)
+    cum_in = np.vstack([np.zeros((1, 27)), np.cumsum(inner, axis=0)])
+    cum_col = np.vstack([np.zeros((1, 9)), np.cumsum(column, axis=0)])
+    q = np.ravel_multi_index(np.asarray(cells).T, dims)
+    lin_s = lin[order]
+    lo, hi = np.searchsorted(lin_s, q, "left"), np.searchsorted(lin_s, q, "right")
+    top = np.searchsorted(lin_s, (q // dims[2] + 1) * dims[2], "left")
+    section = cum_col[top] - cum_col[hi]
+    ab = EXPONENTS[:, 0] * 3 + EXPONENTS[:, 1]
+    return (cum_in[hi] - cum_in[lo]) + section[:, ab] / (EXPONENTS[:, 2] + 1)
+
+
+@pytest.mark.parametrize("chunk", [1, 7, 1 << 15])
+def test_row_chunked_moments_are_the_whole_array_passes_bit_for_bit(monkeypatch, chunk):
+    """The voxelizer's passes over (cubes, 27) moments run by row chunks (and skip the gathers of
+    cubes no piece crosses, where ``x - x`` is +0.0): the same bits as the whole-array passes, for
+    any chunk, on a sphere (cubes crossed and not) and a box (nearly all whole) in millimetres off
+    the origin; and a voxelization is the same whatever the chunk."""
+    import importlib
+
+    fill, moments, voxelize = (importlib.import_module(f"sc_fem.lattice.{m}") for m in ("fill", "moments", "voxelize"))
+
+    for mesh, res in ((trimesh.creation.icosphere(subdivisions=3, radius=1.0), 9),
+                      (shapes.off_origin(trimesh.creation.box(extents=(400.0, 100.0, 80.0)), (5e4, -2e4, 300.0)), 24)):
+        origin, pitch, dims = grid_for(mesh.bounds, resolution=res)
+        pieces, _ = cut_by_grid(mesh.triangles, origin, pitch)
+        cells = np.argwhere(np.ones(tuple(dims), bool))
+        expect = _column_moments_whole(pieces, origin, pitch, dims, cells)
+        for module in (fill, moments, voxelize):
+            monkeypatch.setattr(module, "ROW_CHUNK", chunk)
+        got = column_moments(pieces, origin, pitch, dims, cells)
+        assert got.tobytes() == expect.tobytes()
+    soup = trimesh.util.concatenate([trimesh.creation.box(extents=(1.0, 1.0, 1.0)),
+                                     trimesh.creation.icosphere(subdivisions=2, radius=0.6)])
+    a = sc_fem.voxelize(soup, resolution=20)
+    monkeypatch.undo()
+    b = sc_fem.voxelize(soup, resolution=20)
+    for x, y in ((a.moments, b.moments), (a.mass, b.mass), (a.fraction, b.fraction), (a.hexes, b.hexes)):
+        assert np.asarray(x).tobytes() == np.asarray(y).tobytes()
+
+
+def test_corner_nodes_are_the_corner_points_keyed(rng):
+    """:func:`nodes_and_hexes` takes the corners' linear indices as the cell's plus each corner's
+    offset: the same nodes and connectivity as keying the (n, 8, 3) corner points, with one body
+    and with several."""
+    from sc_fem.lattice.topology import HEX_CORNERS, keyed_nodes, nodes_and_hexes
+
+    for bodies in (1, 3):
+        dims = rng.integers(2, 30, 3)
+        cells = np.unique(np.column_stack([rng.integers(0, d, 400) for d in dims]), axis=0)
+        piece = rng.integers(0, bodies, len(cells))
+        got = nodes_and_hexes(cells, dims, piece)
+        expect = keyed_nodes(cells[:, None, :] + HEX_CORNERS[None], dims + 1, piece)
+        for g, e in zip(got, expect):
+            assert g.dtype == e.dtype == np.int64 and np.array_equal(g, e)
+        node_of_corner = got[0][got[1]]                     # each cube's corners are its cell's corners
+        assert np.array_equal(node_of_corner, cells[:, None, :] + HEX_CORNERS[None])

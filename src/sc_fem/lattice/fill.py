@@ -12,7 +12,7 @@ import numpy as np
 
 from .gridcut import cut_by_grid
 from .topology import mark_cells, unique_cells, voxel_index
-from .moments import FULL, box_moments, column_moments
+from .moments import FULL, ROW_CHUNK, box_moments, column_moments
 from ..geometry.cellwinding import CellWinding
 from ..geometry.inside import boundary_cone
 from ..geometry.rays import crossing_number
@@ -87,7 +87,7 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
         tight_interior, interior = interior[in_tight], interior[~in_tight]
         # an untouched cube inside k intersecting closed parts is counted k times by the columns
         multiple = np.clip(np.rint(w_interior[in_tight]) - 1.0, 0.0, None)
-        pts = surf.points[tight]
+        at_tight = np.flatnonzero(tight)                    # the closed parts' samples (not copied)
         # all cubes of the columns' solid, so that the column sums telescope to the exact volume
         bcells = np.vstack([np.argwhere(region & occupied), tight_interior])
         excess = np.r_[np.zeros(len(bcells) - len(tight_interior)), multiple]
@@ -96,13 +96,16 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
         # each closed part's volume and moments per cube, exact (overlaps count twice): the faces cut
         # along the grid planes, each piece integrated exactly ...
         pieces_t, _ = cut_by_grid(vertices[tf], origin, pitch)
-        mom = column_moments(pieces_t, origin, pitch, dims, bcells) - excess[:, None] * FULL
+        mom = column_moments(pieces_t, origin, pitch, dims, bcells)
+        over = np.flatnonzero(excess)                       # cubes counted more than once (x - 0 is x)
+        mom[over] -= excess[over, None] * FULL
         # ... less the overlaps, sampled in the cubes where a part's surface lies inside another part
         eps = 1e-6 * float(np.linalg.norm(np.ptp(vertices, axis=0)))
         # only samples in cubes that two parts' bounding boxes cover can lie inside another part
         cover = bbox_cover(vertices, parts, tight_part, origin, pitch, dims)
-        buried = np.zeros(len(pts), dtype=bool)
+        buried = np.zeros(len(at_tight), dtype=bool)
         if cover.max(initial=0) >= 2:
+            pts = surf.points[at_tight]
             maybe = np.flatnonzero(cover[tuple(voxel_index(pts, origin, pitch, dims).T)] >= 2)
             tri = vertices[parts.faces[surf.face[tight][maybe]]]
             n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
@@ -114,7 +117,7 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
             # sub-cube spacing about 1/256 of the grid's longest side, whatever the resolution
             n_ov = max(n_sub, -(-OVERLAP_SAMPLES_PER_SIDE // int(dims.max())))
             o_offs = sub_offsets(n_ov)
-            ocells = unique_cells(voxel_index(pts[buried], origin, pitch, dims), dims)
+            ocells = unique_cells(voxel_index(surf.points[at_tight[buried]], origin, pitch, dims), dims)
             sub = origin + pitch * (ocells[:, None, :] + o_offs[None]).reshape(-1, 3)
             excess = np.clip(np.rint(crossing_number(vertices, tf, sub)) - 1.0, 0.0, None)
             lin_b = np.ravel_multi_index(bcells.T, dims)
@@ -124,9 +127,14 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
         vol = mom[:, 0] * pitch**3
         keep = vol > 1e-9 * pitch**3
         n_kept = int(keep.sum())
-        pieces.append(Samples(origin + pitch * (bcells[keep] + 0.5), vol[keep], np.full(n_kept, -1, dtype=np.int64),
-                              mom[keep] - mom[keep][:, :1] * FULL, np.arange(n_kept)))    # beyond an even share
-        cells.append(bcells[keep])
+        uneven = mom if n_kept == len(mom) else mom[keep]   # beyond an even share, in place by row chunks
+        for r in range(0, n_kept, ROW_CHUNK):
+            u = uneven[r:r + ROW_CHUNK]
+            u -= u[:, :1] * FULL
+        kept = bcells[keep]
+        pieces.append(Samples(origin + pitch * (kept + 0.5), vol[keep], np.full(n_kept, -1, dtype=np.int64),
+                              uneven, np.arange(n_kept)))
+        cells.append(kept)
     pieces.append(volume_samples(interior, origin, pitch))          # whole cubes: even shares, no moments
     cells.append(interior)
     if leaky.any():

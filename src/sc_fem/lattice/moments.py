@@ -105,6 +105,11 @@ def piece_integrals(pieces: np.ndarray, cells: np.ndarray, origin: np.ndarray,
     return inner, column
 
 
+ROW_CHUNK = 1 << 15
+"""Rows per chunk of the voxelizer's passes over (cubes, 27) moments (7 MB of doubles, in the cache):
+a million-cube box's gathers and checks took 2-3x as long as whole-array passes, paying for fresh pages."""
+
+
 def column_moments(pieces: np.ndarray, origin: np.ndarray, pitch: float, dims: np.ndarray,
                    cells: np.ndarray) -> np.ndarray:
     """Moments (c, 27) of the solid bounded by closed, outward-oriented surface pieces in ``cells``.
@@ -133,10 +138,23 @@ def column_moments(pieces: np.ndarray, origin: np.ndarray, pitch: float, dims: n
     column_end = (q // dims[2] + 1) * dims[2]
     lo, hi = np.searchsorted(lin_s, q, "left"), np.searchsorted(lin_s, q, "right")
     top = np.searchsorted(lin_s, column_end, "left")
-    section = cum_col[top] - cum_col[hi]                                   # (c, 9) moments on the top face
-    c = EXPONENTS[:, 2]
+    c1 = EXPONENTS[:, 2] + 1
     ab = EXPONENTS[:, 0] * 3 + EXPONENTS[:, 1]
-    return (cum_in[hi] - cum_in[lo]) + section[:, ab] / (c + 1)
+    # by row chunks, in the cache: the same operations. A cube that no piece crosses has
+    # cum_in[hi] - cum_in[lo] = x - x = +0.0 exactly (the sums are finite): its rows stay zeros
+    out = np.zeros((len(q), 27))
+    crossed = np.flatnonzero(lo != hi) if np.isfinite(cum_in).all() else np.arange(len(q))
+    for s in range(0, len(crossed), ROW_CHUNK):
+        rows = crossed[s:s + ROW_CHUNK]
+        out[rows] = cum_in[hi[rows]] - cum_in[lo[rows]]
+    for s in range(0, len(q), ROW_CHUNK):
+        r = slice(s, s + ROW_CHUNK)
+        section = cum_col[top[r]]
+        section -= cum_col[hi[r]]                                          # (rows, 9) moments on the top face
+        above = section[:, ab]
+        above /= c1
+        out[r] += above
+    return out
 
 
 def box_moments(lo: np.ndarray, size: float) -> np.ndarray:

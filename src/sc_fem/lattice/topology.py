@@ -182,20 +182,30 @@ def keyed_nodes(points: np.ndarray, ndims: np.ndarray, piece: np.ndarray) -> tup
     nodes : ndarray of int, shape (n, k)
         Node of each cube's points.
     """
-    n, k = points.shape[:2]
     ndims = np.asarray(ndims, dtype=np.int64)
-    lin = np.ravel_multi_index(points.reshape(-1, 3).T, ndims)
+    return _keyed(np.ravel_multi_index(points.reshape(-1, 3).T, ndims).reshape(points.shape[:2]), ndims, piece)
+
+
+def _keyed(lin: np.ndarray, ndims: np.ndarray, piece: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`keyed_nodes` from the points' linear indices ``lin`` (n, k) in a lattice of ``ndims``."""
+    n, k = lin.shape
     n_p = int(piece.max()) + 1 if len(piece) else 1
-    uniq, inverse = unique_keys(lin * n_p + np.repeat(piece, k), int(np.prod(ndims)) * n_p, return_inverse=True)
+    keys = lin.reshape(-1) if n_p == 1 else lin.reshape(-1) * n_p + np.repeat(piece, k)   # one body: the points
+    uniq, inverse = unique_keys(keys, int(np.prod(ndims)) * n_p, return_inverse=True)
     node_index = np.stack(np.unravel_index(uniq // n_p, ndims), axis=1).astype(np.int64)
-    return node_index, inverse.reshape(n, k).astype(np.int64)
+    return node_index, inverse.reshape(n, k).astype(np.int64, copy=False)
 
 
 def nodes_and_hexes(cells: np.ndarray, dims: np.ndarray, piece: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unique corner nodes of the cubes and the (n, 8) connectivity (:func:`keyed_nodes` on the
     corners): a node is a (grid corner, body) pair, so cubes of different bodies in one cell share
-    no node."""
-    return keyed_nodes(cells[:, None, :] + HEX_CORNERS[None, :, :], np.asarray(dims, dtype=np.int64) + 1, piece)
+    no node. The corners' linear indices are the cell's plus each corner's offset (no (n, 8, 3)
+    array of corner points)."""
+    ndims = np.asarray(dims, dtype=np.int64) + 1
+    cells = np.asarray(cells, dtype=np.int64)
+    step = np.array([ndims[1] * ndims[2], ndims[2], 1], dtype=np.int64)
+    lin = (np.ravel_multi_index(cells.T, ndims) if len(cells) else np.zeros(0, np.int64))[:, None] + HEX_CORNERS @ step
+    return _keyed(lin, ndims, piece)
 
 
 def piece_labels(cells: np.ndarray, dims: np.ndarray, connectivity: str, piece: np.ndarray) -> tuple[np.ndarray, int]:

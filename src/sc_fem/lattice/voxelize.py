@@ -30,7 +30,7 @@ from ..material import Material
 from .cubes import CubeModel
 from .grid import SPACING_FRACTION, _memory_guard, _point_cloud_pitch, _point_spacing, grid_for, hash_samples
 from .mass import _sample_material
-from .moments import FULL, valid_moments
+from .moments import FULL, ROW_CHUNK, valid_moments
 from .options import DEFAULT_RESOLUTION, DEFAULT_SUBSAMPLES, FILLS, STIFFNESS, VoxelOptions  # noqa: F401 (re-exported)
 from .pieces import _body_samples, _find_bodies, _keep
 
@@ -64,7 +64,11 @@ def _full_within_roundoff(moments: np.ndarray, origin, pitch: float, dims) -> np
     tol = 1e3 * np.finfo(float).eps * extent
     full = np.abs(moments[:, 0] - FULL[0]) <= tol          # the volume first: most partial cubes fail there
     at = np.flatnonzero(full)
-    full[at] = np.abs(moments[at] - FULL).max(axis=1) <= tol
+    for s in range(0, len(at), ROW_CHUNK):                 # row chunks: no (n, 27) temporaries
+        rows = at[s:s + ROW_CHUNK]
+        d = moments[rows]
+        d -= FULL
+        full[rows] = np.abs(d, out=d).max(axis=1) <= tol
     return full
 
 
@@ -163,7 +167,8 @@ def _voxelize(mesh: Any, opts: VoxelOptions, bar: Any) -> CubeModel:
                                          sums={"volume": samples.weight}, piece=sample_body,
                                          row_sums={"uneven": (rows, given)})
     volume = avg["volume"]                             # filled volume per cube, model units^3
-    moments = (volume / pitch**3)[:, None] * FULL + avg["uneven"]
+    moments = (volume / pitch**3)[:, None] * FULL
+    moments += avg["uneven"]
     fraction = np.clip(volume / pitch**3, 0.0, 1.0)
     full = _full_within_roundoff(moments, origin, pitch, dims)
     moments[full], fraction[full] = FULL, 1.0
