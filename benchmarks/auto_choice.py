@@ -19,7 +19,8 @@ machine's load, writes ``benchmarks/out/auto_choice.json`` (``--out``) and ``aut
 (copied to ``docs/``). ``--from-json`` re-predicts stored runs with the current model, and
 ``--fit`` fits LOBPCG's model (:data:`sc_fem.fem.fill.LOBPCG_FILL_MODEL`) to them (:func:`fit`),
 ``--loo`` predicts each shape with the iteration constants fitted without it (:func:`leave_one_out`);
-``--unseen`` times seven shapes no fit has used (:func:`unseen_shapes`), ``--fresh`` fifteen more
+LOBPCG's own forecast at its first progress check (iteration 20) is printed against the iterations it
+took. ``--unseen`` times seven shapes no fit has used (:func:`unseen_shapes`), ``--fresh`` fifteen more
 (:func:`fresh_shapes`).
 """
 
@@ -182,6 +183,7 @@ def measure(label: str, kind: str, mesh, r: int, scale: float, repeat: int) -> d
                                                          aggregates=agg).solve(k), info, parts["lobpcg"]))
     rec["shift-invert_parts"], rec["lobpcg_parts"] = parts["shift-invert"], parts["lobpcg"]
     rec["lobpcg_iterations"], rec["lobpcg_error"] = info.get("iterations"), info.get("error")
+    rec["lobpcg_forecasts"] = info.get("forecasts")           # LOBPCG's own, at its progress checks
     for m, ts in runs.items():
         ok = [t for t in ts if t is not None]
         rec[m] = float(np.median(ok)) if ok else None
@@ -337,6 +339,16 @@ def table(records: list[dict]) -> None:
                   f"(taken / predicted {r.min():.2f}-{r.max():.2f})")
     print(f"auto picks the faster on {right} of {len(records)}; spread (max - min) / median of the repeats: "
           f"median {np.median(spread) if spread else 0:.0%}, largest {max(spread, default=0):.0%}")
+    first = [(rec["shape"], rec["res"], rec["lobpcg_forecasts"][0], rec["lobpcg_iterations"], rec["lobpcg"])
+             for rec in records if rec.get("lobpcg_forecasts") and rec.get("lobpcg_iterations")]
+    first = [(a, b, f, t, sec) for a, b, f, t, sec in first if f["iterations"]]
+    if first:                                  # LOBPCG's forecast at its first check, against what it took
+        its = np.array([f["iterations"] / t for _, _, f, t, _ in first])
+        secs = np.array([f["seconds"] / sec for _, _, f, _, sec in first])
+        print(f"LOBPCG's forecast at its first check (iteration 20), on the {len(first)} converged runs that went "
+              f"past it: iterations {its.min():.2f}-{its.max():.2f}x of those taken, seconds (set-up included) "
+              f"{secs.min():.2f}-{secs.max():.2f}x of the median run's: "
+              + ", ".join(f"{a} r{b} {f['iterations']}/{t} its" for a, b, f, t, _ in first))
 
 
 def _name_points(ax, points: list[tuple[float, float, str, str]]) -> None:

@@ -234,8 +234,11 @@ def test_sigint_to_a_batch_on_worker_processes_prints_one_line_and_no_traceback(
 
     script, out = tmp_path / "batch.py", tmp_path / "out"
     script.write_text(_SCRIPT)
+    # SIGINT as a terminal gives it, also when the tests themselves run as a background job, whose
+    # commands start with SIGINT ignored (POSIX), which the batch and its workers would inherit
     proc = subprocess.Popen([sys.executable, str(script), str(out)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+                            stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         deadline = time.monotonic() + 240
         while not (out / "beam.modes.npz").exists() and proc.poll() is None and time.monotonic() < deadline:

@@ -213,3 +213,34 @@ def test_the_loose_start_takes_the_largest_loose_parts_the_block_holds():
     assert loose_start(points, labels, np.array([2]), 20) is None
     got = loose_start(points, labels, np.array([0, 2, 3, 1]), 20)   # room for 3 parts of 6 columns
     np.testing.assert_array_equal(got, part_rigid_modes(points, labels, np.array([1, 3, 2])))
+
+
+def test_the_projection_is_exact_on_a_geometric_decay_and_unbounded_on_a_stall():
+    """:func:`projected_iterations` extrapolates the logarithm of the largest wanted residual: on
+    residuals falling 10x an iteration from 1e6 x tol it names the iteration where they reach tol;
+    on a flat or rising window, no end."""
+    from sc_fem.fem.lobpcg import projected_iterations
+
+    tol = 1e-3
+    hist = [np.array([tol * 10.0 ** (6 - i), tol]) for i in range(4)]       # at iteration 3: 1e3 x tol
+    assert projected_iterations(hist, tol, 2) == pytest.approx(6.0)
+    assert projected_iterations(hist, tol, 8) == pytest.approx(6.0)           # a window past the start: what there is
+    flat = [np.array([5.0 * tol])] * 10
+    assert projected_iterations(flat, tol, 8) == float("inf")
+    assert projected_iterations(flat[:1], tol, 8) == float("inf")
+
+
+def test_a_monitor_sees_every_check_and_can_stop_the_solve():
+    """The monitor is called at each progress check (iteration 20, then every 8) with the
+    iteration and the projection; returning True ends the solve there, ``"over budget"``."""
+    rng = np.random.default_rng(3)
+    n = 400
+    d = np.linspace(1.0, 1e4, n)
+    A, B = sp.diags(d).tocsr(), sp.identity(n, format="csr")
+    X0 = rng.standard_normal((n, 8))
+    seen = []
+    _, _, info = lobpcg(A, B, X0, 4, 1e-12, maxiter=60, monitor=lambda it, p: seen.append((it, p)) or False)
+    assert [it for it, _ in seen] == [20, 28, 36, 44, 52, 60][:len(seen)] and len(seen) >= 2
+    assert all(p > it for it, p in seen)                              # not yet converged at a check
+    _, _, info = lobpcg(A, B, X0, 4, 1e-12, maxiter=60, monitor=lambda it, p: it >= 28)
+    assert info["stop"] == "over budget" and info["iterations"] == 28

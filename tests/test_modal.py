@@ -605,7 +605,12 @@ def test_lobpcg_that_cannot_precondition_the_bridge_never_returns_its_modes(monk
 
     monkeypatch.setattr(eigen, "choose_method", lambda *a: ("lobpcg", "chosen by the test"))
     out = modal(scene, n_modes=4, eigen="auto")
-    assert out.eigen["method"] == "shift-invert" and "fell back to shift-invert" in out.eigen["reason"]
+    # chosen automatically, LOBPCG's forecast at its first check (iteration 20, where it would have
+    # stopped "stalled" at 28) sees the residual no longer falling: it switches to shift-invert
+    assert out.eigen["method"] == "shift-invert"
+    assert re.search(r"forecast at iteration 20: its residual stopped falling.*switched to shift-invert",
+                     out.eigen["reason"]), out.eigen["reason"]
+    assert out.eigen["lobpcg_failed"]["stop"] == "over budget" and out.eigen["lobpcg_failed"]["iterations"] == 20
     np.testing.assert_allclose(out.frequencies, f, rtol=1e-6)
 
 
@@ -669,3 +674,31 @@ def test_an_owning_solver_whose_set_up_failed_can_solve_again(monkeypatch):
     with pytest.raises(MemoryError):
         own.solve(4)
     np.testing.assert_allclose(own.solve(4).eigenvalues, ref.eigenvalues, rtol=1e-6)
+
+
+def test_lobpcg_forecasts_the_rest_and_auto_switches_when_shift_invert_would_finish_sooner(monkeypatch):
+    """The free chair at 32 (16 pairs) takes LOBPCG ~30 iterations: at its first progress check
+    (iteration 20) it forecasts them from the last 8 iterations' decay, within 1.3x of what it
+    takes. Chosen automatically, LOBPCG carries on while shift-invert would not finish sooner, and
+    switches to it at that check when it would (its predicted time made tiny here): the same
+    frequencies, and the reason says why."""
+    from sc_fem.fem import eigen
+    from sc_fem.scene import Scene
+
+    scene = Scene.from_mesh("builtin:chair", resolution=32)
+    ref = modal(scene, n_modes=10, eigen="shift-invert")
+    monkeypatch.setattr(eigen, "choose_method", lambda *a: ("lobpcg", "chosen by the test"))
+    for t_si, method in ((1e9, "lobpcg"), (1e-6, "shift-invert")):
+        monkeypatch.setattr(eigen, "predicted_seconds", lambda m, *a, t=t_si: t if m == "shift-invert" else 1.0)
+        out = modal(scene, n_modes=10, eigen="auto")
+        assert out.eigen["method"] == method, out.eigen["reason"]
+        np.testing.assert_allclose(out.frequencies, ref.frequencies, rtol=1e-5)
+    done = modal(scene, n_modes=10, eigen="lobpcg").eigen
+    first = done["forecasts"][0]
+    assert first["at_iteration"] == 20 and done["iterations"] > 24
+    assert 1 / 1.3 <= first["iterations"] / done["iterations"] <= 1.3
+    assert first["seconds"] > first["seconds_more"] > 0
+    switched = out.eigen
+    assert switched["lobpcg_failed"]["stop"] == "over budget" and switched["lobpcg_failed"]["iterations"] == 20
+    assert re.search(r"forecast at iteration 20: ~\d+ iterations in all, ~[\d.e+-]+ s more, over 1.5x "
+                     r"shift-invert's predicted 1e-06 s: switched to shift-invert", switched["reason"]), switched["reason"]

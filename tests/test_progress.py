@@ -177,3 +177,17 @@ def test_a_log_file_or_pipe_gets_stage_lines_not_bars(unconfigured, monkeypatch,
         monkeypatch.setenv(_progress.ENV, "always")
         with _progress.stage_bar("forced") as bar:
             assert not bar.disable
+
+
+def test_lobpcg_bar_gets_its_forecast_as_total(always, capsys):
+    """Past its first progress check (iteration 20) LOBPCG's bar shows ``n/total`` with the total
+    its forecast names (and so the time left); the free chair at 32 takes ~30 iterations."""
+    from sc_fem.scene import Scene
+
+    scene = Scene.from_mesh("builtin:chair", resolution=32)
+    with _log.stderr_messages("INFO"):
+        out = sc_fem.modal(scene, n_modes=10, eigen="lobpcg")
+    err = capsys.readouterr().err
+    totals = {int(t) for t in re.findall(r"eigensolve \(LOBPCG\):[^\r\n]*?\| *\d+/(\d+) \[", err)}
+    assert out.eigen["forecasts"][0]["iterations"] in totals, err[-2000:]
+    assert re.search(r"LOBPCG forecast at iteration 20: ~\d+ iterations, ~[\d.e+-]+ s more", err)

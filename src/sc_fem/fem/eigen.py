@@ -30,6 +30,9 @@ and the reason are returned in :attr:`EigenResult.reason`. LOBPCG's pairs are ch
 solve: a wanted pair whose relative residual exceeds :data:`LOBPCG_ACCEPT` (AMG can precondition
 thin members badly) makes ``"auto"`` fall back to shift-invert, and an explicitly requested ``"lobpcg"`` raise
 :class:`~sc_fem.errors.SolverError` -- never unconverged modes returned as if they were eigenpairs.
+While LOBPCG runs, it forecasts the rest of its solve at each progress check (``info["forecasts"]``);
+``"auto"`` switches to shift-invert when that rest would take more than :data:`LOBPCG_SWITCH` times
+shift-invert's predicted time.
 
 All eigenvalues are refined and the vectors made exactly ``M``-orthonormal by a final
 Rayleigh--Ritz step on the computed subspace, whose products ``K V``, ``M V`` also give the
@@ -41,6 +44,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
+from typing import Callable
 
 import numpy as np
 import scipy.sparse as sp
@@ -114,6 +118,17 @@ one-cube-thick cables so poorly (PCG needs 300-500 iterations) that LOBPCG stall
 residuals ~0.98 with frequencies 15 % off, and ``modal`` returned them. The solver then falls back
 to shift-invert (``method="auto"`` when the factorization fits the budget) or raises
 :class:`SolverError` (``method="lobpcg"``)."""
+
+LOBPCG_SWITCH = 1.5
+"""``method="auto"``: at each of LOBPCG's progress checks (iteration 20, then every 8) the solver
+forecasts the rest from the decay of the last 8 iterations (:func:`~sc_fem.fem.lobpcg.projected_iterations`)
+and the seconds its iterations took so far, and switches to shift-invert when that rest would take more
+than this many times shift-invert's predicted time (when the factorization fits the budget). At
+iteration 20 the projection was 0.75-1.25x the iterations taken on the 33 runs of 25 shapes that
+went on past it (``benchmarks/auto_choice.py``'s shapes, their seconds 0.81-1.13x on the 13 fresh
+ones); on the two models where LOBPCG stalls or crawls it said 257 (the armchair at 64, which stops
+"stalled" at 28) and 123-132 (the toy truck at 96). Switching there, ``sc_fem.modal`` took 21 s
+instead of 35 on the armchair, 45 s instead of 60 on the truck."""
 
 VCYCLE_DTYPE = np.float32
 """Precision of LOBPCG's preconditioner, the AMG V-cycle (:class:`~sc_fem.fem.multigrid.LatticeAMG`
@@ -276,6 +291,12 @@ class EigenSolver:
         msg = (f"LOBPCG did not converge: relative residual {worst:.2g} > {LOBPCG_ACCEPT:g} after "
                f"{info['iterations']} iterations (stopped: {info['stop']}; "
                f"the AMG preconditioner works poorly on this model)")
+        if info["stop"] == "over budget":                  # only "auto" stops it so
+            f = info["forecasts"][-1]
+            rest = (f"~{f['iterations']} iterations in all, ~{f['seconds_more']:.3g} s more" if f["iterations"]
+                    else "its residual stopped falling")
+            msg = (f"LOBPCG's forecast at iteration {f['at_iteration']}: {rest}, over {LOBPCG_SWITCH:g}x shift-invert's "
+                   f"predicted {self._info['predicted_seconds']['shift-invert']:.3g} s")
         if not self._auto:
             raise SolverError(f"{msg}; use the shift-invert solver (eigen='shift-invert', or 'auto' to "
                               f"fall back automatically)")
@@ -285,7 +306,7 @@ class EigenSolver:
                               f"{budget / 2**30:.1f} GiB: use a coarser resolution or raise max_memory "
                               f"(EigenOptions(max_memory=...))")
         self._info["lobpcg_failed"] = {"relative_residual": worst, **info}
-        self.reason = f"{self.reason}; {msg}: fell back to shift-invert"
+        self.reason = f"{self.reason}; {msg}: {'switched' if info['stop'] == 'over budget' else 'fell back'} to shift-invert"
         self.method, self.backend = "shift-invert", self._requested_backend
         self._build()
 
@@ -309,9 +330,38 @@ class EigenSolver:
         # eigenvalue scale we know, times the typical ||M x|| ~ sqrt(mean diag M)
         tol_abs = self.lobpcg_tol * abs(self.sigma) * float(np.sqrt(np.mean(self.M.diagonal())))
         with blas_single_threaded(), stage_bar("eigensolve (LOBPCG)") as bar:   # counts the V-cycles
+            forecasts, monitor = self._monitor(bar)
             _, V, info = lobpcg(Ap, Mp, X, k, tol_abs, T=counting(bar, self._op, tol_abs, (k, m)),
-                                maxiter=self.maxiter, seed=self.seed, copy=False)   # X: the block's buffer
-        return V, {key: info[key] for key in ("iterations", "stop", "restarts", "residual_over_tol")}
+                                maxiter=self.maxiter, seed=self.seed, copy=False, monitor=monitor)
+        out = {key: info[key] for key in ("iterations", "stop", "restarts", "residual_over_tol")}
+        return V, {**out, "forecasts": forecasts} if forecasts else out
+
+    def _monitor(self, bar) -> tuple[list[dict], Callable[[int, float], bool]]:
+        """LOBPCG's forecasts, one per progress check (filled in as it runs: ``at_iteration``,
+        ``iterations`` in all or None when unbounded, ``seconds`` in all with the set-up,
+        ``seconds_more``), and the monitor that makes them, gives the progress ``bar`` its total
+        (so that it shows the time left), and stops LOBPCG when ``"auto"`` chose it and
+        shift-invert, which fits the budget, would now finish sooner (:data:`LOBPCG_SWITCH`)."""
+        t_si = self._info.get("predicted_seconds", {}).get("shift-invert") if self._auto else None
+        switch = t_si is not None and (factor_memory_estimate(self.n, self.nnz, self._analysis)
+                                       <= memory_budget(self.max_memory))
+        forecasts, t0 = [], time.perf_counter()
+
+        def monitor(it: int, projected: float) -> bool:
+            spent = time.perf_counter() - t0
+            more = float(max(projected - it, 0.0) * spent / max(it, 1))
+            end = bool(np.isfinite(projected))              # None where the residual stopped falling
+            forecasts.append({"at_iteration": it, "iterations": round(projected) if end else None,
+                              "seconds": self._setup_seconds + spent + more if end else None,
+                              "seconds_more": more if end else None})
+            _LOG.info(f"    LOBPCG forecast at iteration {it}: ~{forecasts[-1]['iterations'] or 'unbounded'} "
+                      f"iterations, ~{more:.3g} s more")
+            if end and not bar.disable:                     # the bar counts one V-cycle an iteration
+                bar.total = max(round(projected), bar.n + 1)
+                bar.refresh()
+            return switch and more > LOBPCG_SWITCH * t_si
+
+        return forecasts, monitor
 
     def solve(self, k: int) -> EigenResult:
         """The ``k`` smallest eigenpairs (``1 <= k < n``), refined by Rayleigh--Ritz, with residuals.

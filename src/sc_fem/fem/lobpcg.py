@@ -29,7 +29,9 @@ blocks of a few vectors on millions of DOFs, where the ``n``-sized arrays are wh
   window's is ``"stalled"``; one whose reduction, kept up, would not reach ``tol`` within
   ``maxiter`` is ``"slow"``. A Rayleigh--Ritz step that breaks down (its Gram matrix not positive
   definite) is restarted without ``P``; a second in a row, or no search direction left, is
-  ``"stalled"``.
+  ``"stalled"``. At each check a ``monitor`` may also stop it (``"over budget"``), given the
+  iterations the decay of the last window, kept up, would take in all
+  (:func:`projected_iterations`).
 """
 
 from __future__ import annotations
@@ -64,6 +66,33 @@ module docstring): small models converge within the first; the bridge at resolut
 residual by 1 % in a window of 8, the cantilevers 3x or more."""
 
 Product = Callable[[np.ndarray], np.ndarray]
+
+
+def projected_iterations(history: list[np.ndarray], tol: float, window: int) -> float:
+    """Iterations in all that LOBPCG would take if the largest wanted residual kept falling as it
+    fell over the last ``window`` iterations (its logarithm, linearly), ``inf`` when it did not fall.
+
+    Parameters
+    ----------
+    history : list of ndarray
+        The wanted pairs' residual norms at iterations ``0 .. it``.
+    tol : float
+        The residual tolerance.
+    window : int
+        Iterations the decay is measured over.
+
+    Returns
+    -------
+    float
+        ``it + log(r_it / tol) / rate``, ``rate = log(r_(it-window) / r_it) / window``.
+    """
+    it = len(history) - 1
+    window = min(window, it)                               # a check before the window: what there is
+    if window < 1:
+        return float("inf")
+    now, before = float(np.max(history[-1])), float(np.max(history[-1 - window]))
+    rate = np.log(before / now) / window if now > 0 and before > 0 else 0.0
+    return it + max(np.log(now / tol), 0.0) / rate if rate > 0 else float("inf")
 
 
 def _product(A) -> Product:
@@ -165,7 +194,8 @@ def _start(A: Product, B: Product, X0: np.ndarray, seed: int, copy: bool
 
 def lobpcg(A, B, X0: np.ndarray, k: int, tol: float, *, T=None, maxiter: int = 400,
            checks: tuple[int, int] = CHECKS, seed: int = 0, soft_locking: bool = True,
-           copy: bool = True) -> tuple[np.ndarray, np.ndarray, dict]:
+           copy: bool = True, monitor: Callable[[int, float], bool] | None = None
+           ) -> tuple[np.ndarray, np.ndarray, dict]:
     """The ``k`` smallest eigenpairs of ``A x = lambda B x`` by block LOBPCG (module docstring).
 
     Parameters
@@ -192,6 +222,10 @@ def lobpcg(A, B, X0: np.ndarray, k: int, tol: float, *, T=None, maxiter: int = 4
         Converged columns get no new direction (default); False: every column does (for tests).
     copy : bool
         False: a C-ordered float64 ``X0`` becomes the block's buffer (overwritten; one block less).
+    monitor : callable, optional
+        ``monitor(it, projected) -> bool``, called at each progress check with the iteration and
+        :func:`projected_iterations` (over the later windows' length): True stops the solve
+        (``"over budget"``; e.g. when another solver would now finish sooner).
 
     Returns
     -------
@@ -200,7 +234,8 @@ def lobpcg(A, B, X0: np.ndarray, k: int, tol: float, *, T=None, maxiter: int = 4
     X : ndarray, shape (n, m)
         The ``B``-orthonormal Ritz vectors (the block's own buffer).
     info : dict
-        ``iterations``; ``stop`` (``"converged"``, ``"maxiter"``, ``"stalled"`` or ``"slow"``);
+        ``iterations``; ``stop`` (``"converged"``, ``"maxiter"``, ``"stalled"``, ``"slow"`` or
+        ``"over budget"``);
         ``restarts`` (Rayleigh--Ritz steps redone without ``P``); ``residual_over_tol`` (the
         largest wanted residual over ``tol`` at the end); ``history``, shape (iterations + 1, k):
         the wanted pairs' residual norms at each iteration.
@@ -237,6 +272,9 @@ def lobpcg(A, B, X0: np.ndarray, k: int, tol: float, *, T=None, maxiter: int = 4
             break
         if it >= next_check:
             _LOG.info(f"    LOBPCG iteration {it}: largest wanted residual {worst:.3g} x the tolerance")
+            if monitor is not None and monitor(it, projected_iterations(hist, tol, checks[1])):
+                stop = "over budget"
+                break
             if prev is not None and (window_best >= prev or
                                      it + checks[1] * np.log(window_best) / np.log(prev / window_best) > maxiter):
                 stop = "stalled" if window_best >= prev else "slow"
