@@ -190,4 +190,7 @@ def test_lobpcg_bar_gets_its_forecast_as_total(always, capsys):
     err = capsys.readouterr().err
     totals = {int(t) for t in re.findall(r"eigensolve \(LOBPCG\):[^\r\n]*?\| *\d+/(\d+) \[", err)}
     assert out.eigen["forecasts"][0]["iterations"] in totals, err[-2000:]
+    # once it has a total it keeps one: never past it (tqdm would fall back to a bare count, "31it")
+    after = err[re.search(r"eigensolve \(LOBPCG\):[^\r\n]*?\| *\d+/\d+ \[", err).start():]
+    assert not re.search(r"eigensolve \(LOBPCG\): \d+it \[", after), after[-500:]
     assert re.search(r"LOBPCG forecast at iteration 20: ~\d+ iterations, ~[\d.e+-]+ s more", err)

@@ -226,6 +226,8 @@ class _Counted:
             text = (f"residual {float(np.linalg.norm(r, axis=0).max()) / self.tol:.1e} x tol" if r.shape[1]
                     else "wanted converged")
             self.bar.set_postfix_str(text, refresh=False)
+        if self.bar.total is not None and self.bar.n >= self.bar.total:    # a forecast total passed: one more
+            self.bar.total = self.bar.n + 1
         self.bar.update(1)
 
     def matvec(self, x: np.ndarray) -> np.ndarray:
