@@ -605,8 +605,8 @@ def test_lobpcg_that_cannot_precondition_the_bridge_never_returns_its_modes(monk
 
     monkeypatch.setattr(eigen, "choose_method", lambda *a: ("lobpcg", "chosen by the test"))
     out = modal(scene, n_modes=4, eigen="auto")
-    # chosen automatically, LOBPCG's forecast at its first check (iteration 20, where it would have
-    # stopped "stalled" at 28) sees the residual no longer falling: it switches to shift-invert
+    # chosen automatically, LOBPCG's forecast at its first check (iteration 20; by name, above, it
+    # runs on until its progress checks give up) sees the residual no longer falling: it switches
     assert out.eigen["method"] == "shift-invert"
     assert re.search(r"forecast at iteration 20: its residual stopped falling.*switched to shift-invert",
                      out.eigen["reason"]), out.eigen["reason"]
