@@ -3,7 +3,7 @@
 Every import in the package's source is read (module top and inside functions alike), resolved to
 the ``sc_fem`` module it names, and held against :data:`LAYERS`, from the bottom up:
 
-    foundation (errors, validation, units, materials, memory)  ->  geometry  ->  lattice  ->  scene
+    foundation (errors, validation, array helpers, units, materials, memory)  ->  geometry  ->  lattice  ->  scene
     ->  fem  ->  modes, dynamics  ->  reconstruct  ->  io  ->  command line
 
 A module may import its own layer and the layers below; ``modes`` and ``dynamics`` share a floor
@@ -21,7 +21,7 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 PKG = SRC / "sc_fem"
 
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("errors", "_lazy", "_validate", "_atomic", "_jit", "_memory", "_log", "_progress", "units", "material"),
+    ("errors", "_lazy", "_validate", "_atomic", "_jit", "_arrays", "_memory", "_log", "_progress", "units", "material"),
     ("geometry",),
     ("lattice",),
     ("scene",),

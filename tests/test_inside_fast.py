@@ -221,9 +221,28 @@ def test_position_ids_are_np_uniques_inverse(rng):
 def test_row_norms_are_numpys_norms_bit_for_bit(rng):
     """The column-wise row norms the sampler uses: the same numbers as ``np.linalg.norm(axis=1)``
     over 16 orders of magnitude, zeros, infinities and NaN included."""
-    from sc_fem.geometry.sampling import row_norms
+    from sc_fem._arrays import row_norms
 
     d = rng.standard_normal((100_000, 3)) * 10.0 ** rng.uniform(-8, 8, (100_000, 1))
     d[:10] = 0.0
     d[10, 1], d[11, 2] = np.inf, np.nan
     np.testing.assert_array_equal(row_norms(d), np.linalg.norm(d, axis=1))
+
+
+def test_column_bounds_are_numpys_reductions(rng):
+    """The column-wise bounds: the same numbers as ``min`` / ``max`` over the leading axes, on
+    (n, 3) and (n, 3, 3) arrays, the first columns only, integers, and NaN where numpy gives NaN."""
+    from sc_fem._arrays import column_bounds
+
+    for a in (rng.standard_normal((1000, 3)) * 1e6, rng.standard_normal((500, 3, 3)), rng.integers(-9, 9, (77, 3))):
+        for k in (None, 2):
+            lo, hi = column_bounds(a, k)
+            cols = a.shape[-1] if k is None else k
+            flat = a.reshape(-1, a.shape[-1])[:, :cols]
+            np.testing.assert_array_equal(lo, flat.min(axis=0))
+            np.testing.assert_array_equal(hi, flat.max(axis=0))
+            assert lo.dtype == a.dtype and lo.shape == (cols,)
+    a = rng.standard_normal((10, 3))
+    a[3, 1] = np.nan
+    lo, hi = column_bounds(a)
+    assert np.isnan(lo[1]) and np.isnan(hi[1]) and np.isfinite(lo[[0, 2]]).all()

@@ -688,8 +688,9 @@ def test_lobpcg_forecasts_the_rest_and_auto_switches_when_shift_invert_would_fin
     scene = Scene.from_mesh("builtin:chair", resolution=32)
     ref = modal(scene, n_modes=10, eigen="shift-invert")
     monkeypatch.setattr(eigen, "choose_method", lambda *a: ("lobpcg", "chosen by the test"))
-    for t_si, method in ((1e9, "lobpcg"), (1e-6, "shift-invert")):
-        monkeypatch.setattr(eigen, "predicted_seconds", lambda m, *a, t=t_si: t if m == "shift-invert" else 1.0)
+    for t_si, method in ((1e9, "lobpcg"), (1e-6, "shift-invert")):      # beyond the fill analysis made
+        monkeypatch.setattr(eigen, "predicted_seconds",
+                            lambda m, n, k, a=None, t=t_si: t + (a.seconds if a else 0.0) if m == "shift-invert" else 1.0)
         out = modal(scene, n_modes=10, eigen="auto")
         assert out.eigen["method"] == method, out.eigen["reason"]
         np.testing.assert_allclose(out.frequencies, ref.frequencies, rtol=1e-5)
@@ -701,4 +702,5 @@ def test_lobpcg_forecasts_the_rest_and_auto_switches_when_shift_invert_would_fin
     switched = out.eigen
     assert switched["lobpcg_failed"]["stop"] == "over budget" and switched["lobpcg_failed"]["iterations"] == 20
     assert re.search(r"forecast at iteration 20: ~\d+ iterations in all, ~[\d.e+-]+ s more, over 1.5x "
-                     r"shift-invert's predicted 1e-06 s: switched to shift-invert", switched["reason"]), switched["reason"]
+                     r"the 1e-06 s predicted for shift-invert: switched to shift-invert", switched["reason"]), switched["reason"]
+    assert switched["lobpcg_failed"]["forecasts"][-1]["shift_invert_seconds"] == pytest.approx(1e-6, rel=1e-6)

@@ -120,15 +120,11 @@ to shift-invert (``method="auto"`` when the factorization fits the budget) or ra
 :class:`SolverError` (``method="lobpcg"``)."""
 
 LOBPCG_SWITCH = 1.5
-"""``method="auto"``: at each of LOBPCG's progress checks (iteration 20, then every 8) the solver
-forecasts the rest from the decay of the last 8 iterations (:func:`~sc_fem.fem.lobpcg.projected_iterations`)
-and the seconds its iterations took so far, and switches to shift-invert when that rest would take more
-than this many times shift-invert's predicted time (when the factorization fits the budget). At
-iteration 20 the projection was 0.75-1.25x the iterations taken on the 33 runs of 25 shapes that
-went on past it (``benchmarks/auto_choice.py``'s shapes, their seconds 0.81-1.13x on the 13 fresh
-ones); on the two models where LOBPCG stalls or crawls it said 257 (the armchair at 64, which stops
-"stalled" at 28) and 123-132 (the toy truck at 96). Switching there, ``sc_fem.modal`` took 21 s
-instead of 35 on the armchair, 45 s instead of 60 on the truck."""
+"""``method="auto"``: at each of LOBPCG's progress checks (iteration 20, then every 8) it forecasts
+the rest (:meth:`EigenSolver._monitor`) and switches to shift-invert when that rest would take more
+than this many times shift-invert's predicted time. At iteration 20 the projection was 0.74-1.25x the
+iterations taken on 31 runs of 18 shapes, the seconds 0.81-1.13x on 13; the armchair at 64, where
+LOBPCG stalls, then took 0.60x the time, the toy truck at 96 0.75x (``docs/performance.md``)."""
 
 VCYCLE_DTYPE = np.float32
 """Precision of LOBPCG's preconditioner, the AMG V-cycle (:class:`~sc_fem.fem.multigrid.LatticeAMG`
@@ -295,8 +291,8 @@ class EigenSolver:
             f = info["forecasts"][-1]
             rest = (f"~{f['iterations']} iterations in all, ~{f['seconds_more']:.3g} s more" if f["iterations"]
                     else "its residual stopped falling")
-            msg = (f"LOBPCG's forecast at iteration {f['at_iteration']}: {rest}, over {LOBPCG_SWITCH:g}x shift-invert's "
-                   f"predicted {self._info['predicted_seconds']['shift-invert']:.3g} s")
+            msg = (f"LOBPCG's forecast at iteration {f['at_iteration']}: {rest}, over {LOBPCG_SWITCH:g}x the "
+                   f"{f['shift_invert_seconds']:.3g} s predicted for shift-invert")
         if not self._auto:
             raise SolverError(f"{msg}; use the shift-invert solver (eigen='shift-invert', or 'auto' to "
                               f"fall back automatically)")
@@ -330,21 +326,24 @@ class EigenSolver:
         # eigenvalue scale we know, times the typical ||M x|| ~ sqrt(mean diag M)
         tol_abs = self.lobpcg_tol * abs(self.sigma) * float(np.sqrt(np.mean(self.M.diagonal())))
         with blas_single_threaded(), stage_bar("eigensolve (LOBPCG)") as bar:   # counts the V-cycles
-            forecasts, monitor = self._monitor(bar)
+            forecasts, monitor = self._monitor(bar, k)
             _, V, info = lobpcg(Ap, Mp, X, k, tol_abs, T=counting(bar, self._op, tol_abs, (k, m)),
                                 maxiter=self.maxiter, seed=self.seed, copy=False, monitor=monitor)
         out = {key: info[key] for key in ("iterations", "stop", "restarts", "residual_over_tol")}
         return V, {**out, "forecasts": forecasts} if forecasts else out
 
-    def _monitor(self, bar) -> tuple[list[dict], Callable[[int, float], bool]]:
-        """LOBPCG's forecasts, one per progress check (filled in as it runs: ``at_iteration``,
-        ``iterations`` in all or None when unbounded, ``seconds`` in all with the set-up,
-        ``seconds_more``), and the monitor that makes them, gives the progress ``bar`` its total
-        (so that it shows the time left), and stops LOBPCG when ``"auto"`` chose it and
-        shift-invert, which fits the budget, would now finish sooner (:data:`LOBPCG_SWITCH`)."""
-        t_si = self._info.get("predicted_seconds", {}).get("shift-invert") if self._auto else None
-        switch = t_si is not None and (factor_memory_estimate(self.n, self.nnz, self._analysis)
-                                       <= memory_budget(self.max_memory))
+    def _monitor(self, bar, k: int) -> tuple[list[dict], Callable[[int, float], bool]]:
+        """LOBPCG's forecasts for ``k`` pairs, one per progress check (filled in as it runs:
+        ``at_iteration``, ``iterations`` in all or None when unbounded, ``seconds`` in all with the
+        set-up, ``seconds_more``; with ``"auto"``, ``shift_invert_seconds``), and the monitor that
+        makes them, gives the progress ``bar`` its total (so that it shows the time left), and stops
+        LOBPCG when ``"auto"`` chose it and shift-invert, which fits the budget, would now finish
+        sooner (:data:`LOBPCG_SWITCH`): its time predicted for these ``k`` pairs, less the fill
+        analysis already made."""
+        switch = self._auto and (factor_memory_estimate(self.n, self.nnz, self._analysis)
+                                 <= memory_budget(self.max_memory))
+        t_si = max(predicted_seconds("shift-invert", self.n, k, self._analysis)
+                   - (self._analysis.seconds if self._analysis is not None else 0.0), 0.0) if self._auto else None
         forecasts, t0 = [], time.perf_counter()
 
         def monitor(it: int, projected: float) -> bool:
@@ -353,7 +352,8 @@ class EigenSolver:
             end = bool(np.isfinite(projected))              # None where the residual stopped falling
             forecasts.append({"at_iteration": it, "iterations": round(projected) if end else None,
                               "seconds": self._setup_seconds + spent + more if end else None,
-                              "seconds_more": more if end else None})
+                              "seconds_more": more if end else None,
+                              **({"shift_invert_seconds": t_si} if t_si is not None else {})})
             _LOG.info(f"    LOBPCG forecast at iteration {it}: ~{forecasts[-1]['iterations'] or 'unbounded'} "
                       f"iterations, ~{more:.3g} s more")
             if end and not bar.disable:                     # the bar counts one V-cycle an iteration

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import inside_jit
+from .._arrays import column_bounds
 from .._jit import choose_kernel
 from .inside import _fast_winding_number, _ray_axis, boundary_cone, cone_winding_number
 from .rays import bin_grid, crossing_faces, crossing_number
@@ -85,12 +86,11 @@ def _cone_certain(closed_v: np.ndarray, apex: np.ndarray, cone: np.ndarray, cent
                                                             axis=1), minlength=len(apex))
     radius = np.zeros(len(apex))
     np.maximum.at(radius, piece, np.linalg.norm(tri[:, :2] - apex[piece][:, None, :], axis=2).max(axis=1))
+    bound = np.empty(len(centres))
     if choose_kernel(kernel) == "numba":
-        bound = np.empty(len(centres))
         inside_jit.area_bounds(np.ascontiguousarray(centres, dtype=np.float64), np.ascontiguousarray(apex), radius,
                                area, float(half_diagonal), bound)
     else:
-        bound = np.empty(len(centres))
         for s in range(0, len(centres), 1 << 16):        # chunks of cells x pieces (bounded memory)
             d = np.linalg.norm(centres[s:s + (1 << 16), None, :] - apex[None], axis=2) - radius - half_diagonal
             bound[s:s + (1 << 16)] = np.sum(np.where(d > 0, area / np.where(d > 0, d, 1.0) ** 2, np.inf),
@@ -192,8 +192,8 @@ class CellWinding:
         if (axis, nb) not in self._binned:
             self._binned[axis, nb] = inside_jit.bin_faces(tri, lo, size, nb)
         start, bin_face = self._binned[axis, nb]
-        base = np.array([cells[:, 0].min(), cells[:, 1].min()])                # per axis: ~5x a reduction over axis 0
-        span = np.array([cells[:, 0].max(), cells[:, 1].max()]) - base + 1
+        base, top = column_bounds(cells, 2)
+        span = top - base + 1
         perm, col_start = inside_jit.columns((cells[:, 0] - base[0]) * span[1] + cells[:, 1] - base[1], int(span.prod()))
         inside_jit.column_crossings(cells, col_start, perm, o, self.pitch, (np.arange(n_sub) + 0.5) / n_sub,
                                     np.ascontiguousarray(sub_index), tri, lo, hi, size, nb, start, bin_face, out)

@@ -20,7 +20,7 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse import csgraph
 
-from .sampling import row_norms
+from .._arrays import column_bounds, row_norms
 from .rays import crossing_number
 
 CLOSED_THRESHOLD = 0.75
@@ -354,7 +354,8 @@ def mesh_parts(vertices: np.ndarray, faces: np.ndarray) -> MeshParts:
     start = np.searchsorted(label[order], np.arange(k))
     rank = np.arange(m) - start[label[order]]
     pick = order[(rank < PROBES_PER_PART) & (area2[order] > 0)]
-    diag = float(np.linalg.norm([np.ptp(vertices[:, c]) for c in range(3)]))   # per column: ~5x over axis 0
+    lo, hi = column_bounds(vertices)
+    diag = float(np.linalg.norm(hi - lo))
     d = 1e-4 * diag
     centre = tri[pick].mean(axis=1)
     # boundary_cone(vertices, out): parts share no edge, and those turned over are closed (net 0 either way)

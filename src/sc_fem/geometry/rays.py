@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import inside_jit
+from .._arrays import column_bounds
 from .._jit import choose_kernel
 
 
@@ -117,9 +118,7 @@ def crossing_faces(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray,
     tri = v[f[seen]]                                            # faces seen edge-on hold no point
     if len(tri) == 0:
         return None
-    # per coordinate: a reduction over axis 0 of the (3m, 2) corners is ~10x slower (strided)
-    lo = np.array([tri[:, :, 0].min(), tri[:, :, 1].min()])
-    hi = np.array([tri[:, :, 0].max(), tri[:, :, 1].max()])
+    lo, hi = column_bounds(tri, 2)                              # the corners' xy box
     return tri, lo, hi
 
 

@@ -3,8 +3,7 @@
 Corners follow scikit-fem's ``MeshHex`` order (:data:`~sc_fem.lattice.topology.HEX_CORNERS`), so
 ``MeshHex(nodes.T, hexes.T)`` is valid without reordering (:meth:`CubeModel.to_skfem`). Geometry
 (``origin``, ``pitch``, ``nodes``) is in the source model's units; ``scale`` converts model units to
-metres, so the cube edge in metres is :attr:`CubeModel.h`. Masses in kg, moduli in Pa, densities
-in kg/m^3.
+metres, so the cube edge in metres is :attr:`CubeModel.h`. Masses in kg, moduli in Pa, densities in kg/m^3.
 """
 
 from __future__ import annotations
@@ -16,6 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.spatial import cKDTree
 
+from .._arrays import column_bounds
 from .._validate import as_float_array, check_material, positive_scalar
 from ..errors import InputError
 from ..material import lame
@@ -192,7 +192,7 @@ class CubeModel:
             moments = as_float_array(moments, "moments", (n, 27))
         elif stiffness == "moments":
             raise InputError("stiffness='moments' needs the moments of every cube")
-        top = np.array([cells[:, d].max() for d in range(3)])   # per axis: ~5x faster than over axis 0
+        top = column_bounds(cells)[1]
         dims = top + 1 if dims is None else np.asarray(dims, dtype=np.int64)
         if np.any(top >= dims):
             raise InputError(f"cells exceed the grid dims {tuple(dims)}")

@@ -74,13 +74,14 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
     interior, w_interior = free[w_free > 0.5], w_free[w_free > 0.5]
 
     tight_part = solid_part & parts.watertight
+    tight_faces = tight_part[parts.label]
     on_solid = solid_faces[surf.face]
-    tight = tight_part[parts.label][surf.face]
+    tight = tight_faces[surf.face]
     leaky = on_solid & ~tight
     offs = sub_offsets(n_sub)
     pieces, cells = [], []
     if tight.any():
-        tf = parts.faces[tight_part[parts.label]]
+        tf = parts.faces[tight_faces]
         if leaky.any():     # interior cells of the closed parts; the others are leaky parts'
             w_interior = crossing_number(vertices, tf, origin + pitch * (interior + 0.5))
         in_tight = w_interior > 0.5
@@ -146,7 +147,7 @@ def solid_fill(occupied: np.ndarray, vertices: np.ndarray, parts, solid_part: np
         pts *= pitch
         pts += origin
         if tight_part.any():        # not where a watertight part already counted the volume
-            tf = parts.faces[tight_part[parts.label]]
+            tf = parts.faces[tight_faces]
             outside_tight = crossing_number(vertices, tf, pts) < 0.5
             inside[inside], pts = outside_tight, pts[outside_tight]
         # what each sub-cube adds beyond an even share, summed over a cell's inside ones onto its first

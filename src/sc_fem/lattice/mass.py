@@ -12,7 +12,8 @@ from scipy.spatial import cKDTree
 from .._validate import check_material
 from ..errors import InputError
 from ..geometry.inside import mesh_parts
-from ..geometry.sampling import Samples, row_norms
+from .._arrays import row_norms
+from ..geometry.sampling import Samples
 from ..material import resolve_field
 from .cubes import voxel_index
 from .topology import mark_cells

@@ -204,7 +204,7 @@ def nodes_and_hexes(cells: np.ndarray, dims: np.ndarray, piece: np.ndarray) -> t
     ndims = np.asarray(dims, dtype=np.int64) + 1
     cells = np.asarray(cells, dtype=np.int64)
     step = np.array([ndims[1] * ndims[2], ndims[2], 1], dtype=np.int64)
-    lin = (np.ravel_multi_index(cells.T, ndims) if len(cells) else np.zeros(0, np.int64))[:, None] + HEX_CORNERS @ step
+    lin = np.ravel_multi_index(cells.T, ndims)[:, None] + HEX_CORNERS @ step
     return _keyed(lin, ndims, piece)
 
 

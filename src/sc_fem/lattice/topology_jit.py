@@ -10,15 +10,23 @@ from __future__ import annotations
 
 import math
 
-from .._jit import compiled, compiled_parallel, prange
+from .._jit import compiled_inline, compiled_parallel, prange
+
+
+def _axis_cell_py(x, o, pitch, hi):  # pragma: no cover - compiled
+    """``clip(floor((x - o) / pitch), 0, hi)``: a coordinate's cell along one axis."""
+    c = int(math.floor((x - o) / pitch))
+    return 0 if c < 0 else (hi if c > hi else c)
+
+
+_axis_cell = compiled_inline(_axis_cell_py)
 
 
 def _cells_py(points, origin, pitch, hi, out):  # pragma: no cover - compiled
     """``out[i, d] = clip(floor((points[i, d] - origin[d]) / pitch), 0, hi[d])`` for points (n, 3)."""
     for i in prange(points.shape[0]):
         for d in range(3):
-            c = int(math.floor((points[i, d] - origin[d]) / pitch))
-            out[i, d] = 0 if c < 0 else (hi[d] if c > hi[d] else c)
+            out[i, d] = _axis_cell(points[i, d], origin[d], pitch, hi[d])
 
 
 cells = compiled_parallel(_cells_py)
@@ -29,17 +37,14 @@ MARK_CHUNK = 1 << 16
 """Points per task of :data:`mark` (each task runs a plain loop, which the compiler vectorizes)."""
 
 
-def _cell_at(points, i, origin, pitch, hi, s0, s1):  # pragma: no cover - compiled
-    """The flat index of the cell of ``points[i]``, as :func:`_cells_py` finds it."""
-    c0 = int(math.floor((points[i, 0] - origin[0]) / pitch))
-    c1 = int(math.floor((points[i, 1] - origin[1]) / pitch))
-    c2 = int(math.floor((points[i, 2] - origin[2]) / pitch))
-    return ((0 if c0 < 0 else (hi[0] if c0 > hi[0] else c0)) * s0
-            + (0 if c1 < 0 else (hi[1] if c1 > hi[1] else c1)) * s1
-            + (0 if c2 < 0 else (hi[2] if c2 > hi[2] else c2)))
+def _cell_py(points, i, origin, pitch, hi, s0, s1):  # pragma: no cover - compiled
+    """The flat index (strides ``s0, s1, 1``) of the cell of ``points[i]``, as :func:`_cells_py` finds it."""
+    return (_axis_cell(points[i, 0], origin[0], pitch, hi[0]) * s0
+            + _axis_cell(points[i, 1], origin[1], pitch, hi[1]) * s1
+            + _axis_cell(points[i, 2], origin[2], pitch, hi[2]))
 
 
-_cell = compiled(_cell_at)
+_cell = compiled_inline(_cell_py)
 
 
 def _keys_py(points, origin, pitch, hi, out):  # pragma: no cover - compiled
