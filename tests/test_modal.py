@@ -438,14 +438,23 @@ def test_a_solver_that_owns_K_and_M_keeps_less_and_solves_the_same(method):
     LOBPCG, ``M`` keeps its nonzeros alone (a third of the lattice pattern) and ``K``'s products come
     from the node blocks; the eigenpairs, residuals and later solves are those of the copies."""
     from sc_fem.fem.eigen import EigenSolver
+    from sc_fem.fem.ritz import relative_residuals
     from sc_fem.fem.shift import ComponentMass, ShiftedStiffness
 
     m = CubeModel.box((16, 4, 3), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
     asm = Assembler(m, "q1i", fixed_dofs=np.arange(3 * 20))
     K, M, B = asm.stiffness(), asm.mass(), rigid_body_modes(m.nodes_m, asm.free_dofs)
     K0, M0 = K.copy(), M.copy()
-    ref = EigenSolver(K0, M0, method=method, near_null=B, backend="splu").solve(5)
+    kept = EigenSolver(K0, M0, method=method, near_null=B, backend="splu")
+    ref = kept.solve(5)
     assert (K0 != K).nnz == 0 and (M0 != M).nnz == 0                 # not owned: untouched
+    assert not isinstance(kept.K, ShiftedStiffness) and not isinstance(kept.M, ComponentMass)
+    if method == "lobpcg":          # not owned either: LOBPCG's M products on the node matrix all the same
+        assert isinstance(kept._products[1], ComponentMass) and kept._products[1].m.nnz * 9 == M0.nnz
+        # the Rayleigh--Ritz step's products are the blocks' and m's: its residuals are K0's and M0's
+        V = ref.vectors
+        np.testing.assert_allclose(ref.residuals, relative_residuals(ref.eigenvalues, K0 @ V, M0 @ V,
+                                                                     kept.lambda_scale), rtol=1e-6)
     own = EigenSolver(K, M, method=method, near_null=B, backend="splu", overwrite=True)
     got = own.solve(5)
     np.testing.assert_allclose(got.eigenvalues, ref.eigenvalues, rtol=1e-9)

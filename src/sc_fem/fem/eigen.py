@@ -59,12 +59,11 @@ from .bsr import node_blocks
 from .linsolve import factorize
 from .lobpcg import lobpcg
 from .multigrid import LatticeAMG
-# rayleigh_ritz, relative_residuals, SHIFT_FRACTION, lambda_scale and shifted are re-exported: the eigensolver's names stay importable from here
+# re-exported (noqa: F401): the eigensolver's names stay importable from here
 from .ritz import rayleigh_ritz, relative_residuals  # noqa: F401
 from .shift import (SHIFT_FRACTION, ComponentMass, ShiftedStiffness, lambda_scale, shift_in_place,  # noqa: F401
                     shifted, without_zeros)
 from .spmm import BlockProduct
-# EigenOptions and lobpcg_memory_estimate are re-exported: the eigensolver's names stay importable from here
 from .options import (METHODS, EigenOptions, choose_method, factor_memory_estimate, fill_analysis,  # noqa: F401
                       lobpcg_block, lobpcg_memory_estimate, memory_budget, predicted_seconds)
 
@@ -129,10 +128,9 @@ LOBPCG stalls, then took 0.60x the time, the toy truck at 96 0.75x (``docs/perfo
 VCYCLE_DTYPE = np.float32
 """Precision of LOBPCG's preconditioner, the AMG V-cycle (:class:`~sc_fem.fem.multigrid.LatticeAMG`
 ``dtype``; LOBPCG, its products with ``K`` and ``M`` and the residuals stay float64). On the
-139,656-DOF cantilever a V-cycle on 10 vectors took 0.68x the float64 one's time (122 ms / 179 ms
-in one run), ``sc_fem.modal`` 0.81x end to end, with the same 23
-LOBPCG iterations and frequencies equal to 1e-12 (the built-in beam and chair: the same iterations
-and frequencies; the bridge at 64 stalls at the same 28 iterations, as with float64)."""
+139,656-DOF cantilever a V-cycle on 10 vectors took 0.68x the float64 one's time (122 ms / 179 ms in
+one run), ``sc_fem.modal`` 0.81x end to end, with the same 23 LOBPCG iterations and frequencies equal
+to 1e-12 (the beam, the chair: the same; the bridge at 64 stalls at 28 iterations either way)."""
 
 
 class EigenSolver:
@@ -179,7 +177,8 @@ class EigenSolver:
         ``K - sigma M`` and, for LOBPCG, both give way to leaner forms (:mod:`sc_fem.fem.shift`;
         a million cubes: ~3.3 GiB less). Only where ``M`` shares ``K``'s pattern (the consistent
         mass): a lumped ``M`` leaves ``K`` as it is and ``K - sigma M`` is a new matrix. Default
-        False: ``K`` and ``M`` are left as they are.
+        False: ``K`` and ``M`` are left as they are (LOBPCG's products with them are the same lean
+        ones: ``M`` as its node matrix, :class:`~sc_fem.fem.shift.ComponentMass`, when it is one).
 
     Attributes
     ----------
@@ -209,14 +208,13 @@ class EigenSolver:
         elif not (np.isfinite(sigma) and sigma < 0):
             raise InputError(f"sigma must be a negative shift (below every eigenvalue), got {sigma!r}")
         self.sigma = float(sigma)
-        self.method, self.backend, self.reason = method, backend, ""
-        self._auto, self._requested_backend = False, backend
+        self.method, self.backend, self.reason, self._auto, self._requested_backend = method, backend, "", False, backend
         self.near_null, self.aggregates = near_null, aggregates
         self.start = near_null if start is None else start
         self.tol, self.lobpcg_tol, self.maxiter, self.max_memory, self.seed = tol, lobpcg_tol, maxiter, max_memory, seed
         self.n_setups, self._setup_seconds, self._info, self.lattice = 0, 0.0, {}, bool(lattice)
         self._op = None                       # OPinv (shift-invert) or the V-cycle (LOBPCG)
-        self._shifted = self._analysis = None  # K - sigma M and its fill (FillAnalysis), from _setup to _build
+        self._shifted = self._analysis = self._ritz = None  # K - sigma M and its fill, from _setup to _build
 
     def _setup(self, k: int) -> None:
         self._shifted, self.reason = self._shift(), "requested"
@@ -251,10 +249,11 @@ class EigenSolver:
         else:
             bs = 3 if self.n % 3 == 0 else 1
             Mp = self.M if isinstance(self.M, ComponentMass) else None       # (a set-up that failed)
-            if self.overwrite and Mp is None and sp.issparse(self.M):   # M's nonzeros alone
+            if Mp is None and sp.issparse(self.M):   # M's nonzeros, as m (x) I_3 when it is (a ninth of M)
                 Mz = without_zeros(self.M)
                 Mp = ComponentMass.of(Mz)
-                self.M = Mp if Mp is not None else Mz
+                if self.overwrite:
+                    self.M = Mp if Mp is not None else Mz
                 del Mz
             if self.overwrite:                       # K's products from the blocks
                 self.K = None
@@ -270,8 +269,9 @@ class EigenSolver:
                 raise
             del A
             self._products = amg.levels[0], Mp if Mp is not None else BlockProduct(self.M)   # K - sigma M, M
-            if self.K is None:
-                self.K = ShiftedStiffness(*self._products, self.sigma, self._products[0].A)
+            # K X, M X for Rayleigh--Ritz from the same products, also when K is kept (no overwrite)
+            self._ritz = ShiftedStiffness(*self._products, self.sigma, self._products[0].A), self._products[1]
+            self.K = self._ritz[0] if self.K is None else self.K
             self._op, self.backend = amg.operator(), "pyamg"      # pyamg aggregation and tentative prolongator
             self._info["levels"] = len(amg.levels)
         self._info["factor_memory_estimate"] = factor_memory_estimate(self.n, self.nnz, self._analysis)
@@ -384,13 +384,13 @@ class EigenSolver:
         if not reused:
             with stage_bar("eigensolver set-up", tick=1.0, rate=False):   # the fill analysis, the AMG
                 self._setup(k)
-        t0 = time.perf_counter()
-        secs = {}
+        t0, secs = time.perf_counter(), {}
         while True:                            # at most twice: LOBPCG, then shift-invert if it failed
             X, info = self._eigsh(k) if self.method == "shift-invert" else self._lobpcg(k)
             secs["solve"] = secs.get("solve", 0.0) + time.perf_counter() - t0
             t0 = time.perf_counter()
-            lam, X, KX, MX = rayleigh_ritz(self.K, self.M, np.asarray(X), k)
+            lam, X, KX, MX = rayleigh_ritz(*(self._ritz if self.method == "lobpcg" else (self.K, self.M)),
+                                           np.asarray(X), k)
             secs["rayleigh_ritz"] = secs.get("rayleigh_ritz", 0.0) + time.perf_counter() - t0
             if not (np.all(np.isfinite(lam)) and np.all(np.isfinite(X))):
                 raise SolverError(f"the eigensolver ({self.method}) returned non-finite values")

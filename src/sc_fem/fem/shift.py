@@ -122,8 +122,10 @@ def shifted(K: sp.spmatrix, M: sp.spmatrix, sigma: float) -> sp.csr_matrix:
         A new matrix (sharing ``K``'s index arrays when the patterns are one).
     """
     K, M = sp.csr_matrix(K), sp.csr_matrix(M)
-    if _same_pattern(K, M):
-        return sp.csr_matrix((K.data - sigma * M.data, K.indices, K.indptr), shape=K.shape)
+    if _same_pattern(K, M):                                    # one new array of the values' size
+        data = np.array(K.data, dtype=np.float64)
+        daxpy(M.data, data, a=-sigma)
+        return sp.csr_matrix((data, K.indices, K.indptr), shape=K.shape)
     data = np.array(K.data, dtype=np.float64)
     if _subtract_subset(K, M, sigma, data):                    # M's entries among K's: K's pattern
         return sp.csr_matrix((data, K.indices, K.indptr), shape=K.shape)
