@@ -37,7 +37,7 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import numpy as np
 
-from _common import SHARED_MESHES, out_path, print_table, save_figure
+from _common import OUT, SHARED_MESHES, out_path, print_table, save_figure
 
 K_PAIRS = 16
 CANTILEVER = "cantilever"
@@ -404,6 +404,7 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=2, help="timed runs of each solver (median and spread)")
     ap.add_argument("--only", nargs="*", help="shape labels to run (default all)")
     ap.add_argument("--from-json", nargs="+", help="print the table and chart of earlier runs' JSON files "
+                    "(paths, or names in benchmarks/out/) "
                     "with the current model's predictions (from their stored fill), measure nothing")
     ap.add_argument("--unseen", action="store_true", help="the shapes no fit has used (unseen_shapes) instead")
     ap.add_argument("--fresh", action="store_true", help="a second set no fit has used (fresh_shapes) instead")
@@ -414,7 +415,10 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     print(f"uptime: {os.popen('uptime').read().strip()}")
     if args.from_json:
-        records = [rec for f in args.from_json for rec in json.loads(Path(f).read_text())]
+        paths = [Path(f) if Path(f).is_file() else OUT / Path(f).name for f in args.from_json]
+        if missing := [f for f, p in zip(args.from_json, paths) if not p.is_file()]:
+            ap.error(f"no such JSON file (here or in {OUT}): {', '.join(missing)}")
+        records = [rec for f in paths for rec in json.loads(f.read_text())]
         if args.loo:
             leave_one_out(records)
         if args.fit:

@@ -472,20 +472,37 @@ def test_a_solver_that_owns_K_and_M_keeps_less_and_solves_the_same(method):
                                .solve(8).eigenvalues, rtol=1e-7)
 
 
-def test_component_mass_is_found_exactly_and_only_where_it_holds():
-    """``M = m (x) I3`` is recognized entry by entry (loop oracle over the node pairs); a mass with a
-    node fixed in one component only, or one entry changed, is not."""
-    from sc_fem.fem.shift import ComponentMass
+@pytest.mark.parametrize("kernel", ["compiled", "numpy"])
+def test_component_mass_is_found_exactly_and_only_where_it_holds(kernel, monkeypatch):
+    """``M = m (x) I3`` is recognized entry by entry (loop oracle over the node pairs), on the
+    lattice's pattern with its zeros, without them, and with its entries out of order; a mass with a
+    node fixed in one component only, one entry changed, a coupling between components, or rows not
+    in threes, is not. The compiled kernels and numpy find the same node matrix."""
+    import scipy.sparse as sp
 
+    from sc_fem.fem import shift
+    from sc_fem.fem.shift import ComponentMass, without_zeros
+
+    if kernel == "numpy":
+        monkeypatch.setattr(shift, "_node_counts", None)
+    elif shift._node_counts is None:
+        pytest.skip("numba (the 'fast' extra) is not installed: no compiled kernel to test")
     m = CubeModel.box((4, 3, 2), 0.05, youngs=1e7, poisson=0.3, density=1000.0)
+    rng = np.random.default_rng(3)
     for lumped in (False, True):
         M = Assembler(m, "q1i").mass(lumped=lumped).tocsr()
-        cm = ComponentMass.of(M)
-        assert cm is not None
-        dense, node = M.toarray(), cm.m.toarray()
-        for i in range(node.shape[0]):                                   # loop oracle over node pairs
-            for j in range(node.shape[0]):
-                np.testing.assert_array_equal(dense[3 * i:3 * i + 3, 3 * j:3 * j + 3], node[i, j] * np.eye(3))
+        C = M.tocoo()
+        order = rng.permutation(C.nnz)                                   # the entries out of order
+        shuffled = sp.csr_matrix((C.data[order], (C.row[order], C.col[order])), shape=M.shape)
+        for given in (M, without_zeros(M), shuffled):
+            cm = ComponentMass.of(given)
+            assert cm is not None
+            dense, node = M.toarray(), cm.m.toarray()
+            for i in range(node.shape[0]):                               # loop oracle over node pairs
+                for j in range(node.shape[0]):
+                    np.testing.assert_array_equal(dense[3 * i:3 * i + 3, 3 * j:3 * j + 3], node[i, j] * np.eye(3))
+            assert cm.m.nnz == np.count_nonzero(node) and cm.m.has_sorted_indices
+    assert ComponentMass.of(sp.identity(5, format="csr")) is None                # rows not in threes
     M = Assembler(m, "q1i", fixed_dofs=[0]).mass().tocsr()               # node 0 fixed in x alone
     assert ComponentMass.of(M) is None
     M = Assembler(m, "q1i").mass().tolil()

@@ -250,11 +250,9 @@ class EigenSolver:
             bs = 3 if self.n % 3 == 0 else 1
             Mp = self.M if isinstance(self.M, ComponentMass) else None       # (a set-up that failed)
             if Mp is None and sp.issparse(self.M):   # M's nonzeros, as m (x) I_3 when it is (a ninth of M)
-                Mz = without_zeros(self.M)
-                Mp = ComponentMass.of(Mz)
+                Mp = ComponentMass.of(self.M)
                 if self.overwrite:
-                    self.M = Mp if Mp is not None else Mz
-                del Mz
+                    self.M = Mp if Mp is not None else without_zeros(self.M)
             if self.overwrite:                       # K's products from the blocks
                 self.K = None
             # node blocks now, the CSR's values reordered into them in place (A is the solver's own:

@@ -218,6 +218,41 @@ class ShiftedStiffness(LinearOperator):
         return self._matmat(np.asarray(x).reshape(-1, 1)).ravel()
 
 
+def _node_counts_py(indptr, indices, data, cnt, bad):  # pragma: no cover - compiled
+    for i in prange(len(cnt)):               # node i: are DOF rows 3i+a row 3i's nonzeros, shifted by a?
+        r, c = 3 * i, 0
+        for p in range(indptr[r], indptr[r + 1]):
+            if data[p] != 0.0:
+                bad[i] |= indices[p] % 3 != 0
+                c += 1
+        cnt[i] = c
+        for a in range(1, 3):
+            q = indptr[r]
+            for p in range(indptr[r + a], indptr[r + a + 1]):
+                if data[p] != 0.0:
+                    while q < indptr[r + 1] and data[q] == 0.0:
+                        q += 1
+                    if q == indptr[r + 1] or indices[p] != indices[q] + a or data[p] != data[q]:
+                        bad[i] = True
+                        q = indptr[r + 1] - 1
+                    q += 1
+            for p in range(q, indptr[r + 1]):    # none of row 3i's nonzeros left over
+                bad[i] |= data[p] != 0.0
+
+
+def _node_fill_py(indptr, indices, data, mptr, mind, mdat):  # pragma: no cover - compiled
+    for i in prange(len(mptr) - 1):          # node row i: row 3i's nonzeros, columns over 3
+        o = mptr[i]
+        for p in range(indptr[3 * i], indptr[3 * i + 1]):
+            if data[p] != 0.0:
+                mind[o], mdat[o] = indices[p] // 3, data[p]
+                o += 1
+
+
+_node_counts = compiled_parallel(_node_counts_py)
+_node_fill = compiled_parallel(_node_fill_py)
+
+
 class ComponentMass:
     """``X -> M X`` for a mass matrix ``M = m (x) I_3``: one scalar matrix ``m`` of node pairs on
     each of the 3 components of the node-major DOFs (the lattice's consistent and lumped masses
@@ -244,7 +279,23 @@ class ComponentMass:
     @classmethod
     def of(cls, M: sp.spmatrix) -> ComponentMass | None:
         """The :class:`ComponentMass` equal to ``M`` (compared entry by entry), or None when ``M`` is not
-        ``m (x) I_3`` on node-major DOFs."""
+        ``m (x) I_3`` on node-major DOFs. Compiled: two passes over ``M``'s rows, no copy of ``M``
+        (a million cubes: ~1 s); numpy: ``M``'s nonzeros copied, then compared node row by node row."""
+        M = sp.csr_matrix(M)
+        n = M.shape[0]
+        if n % 3 or M.shape[1] != n:
+            return None
+        if _node_counts is not None:
+            M = M if M.has_sorted_indices else M.sorted_indices()
+            cnt, bad = np.zeros(n // 3, dtype=np.int64), np.zeros(n // 3, dtype=np.bool_)
+            _node_counts(M.indptr, M.indices, M.data, cnt, bad)
+            if bad.any():
+                return None
+            indptr = np.zeros(n // 3 + 1, dtype=M.indptr.dtype)
+            np.cumsum(cnt, out=indptr[1:])
+            data, indices = np.empty(int(indptr[-1])), np.empty(int(indptr[-1]), dtype=M.indices.dtype)
+            _node_fill(M.indptr, M.indices, M.data, indptr, indices, data)
+            return cls(sp.csr_matrix((data, indices, indptr), shape=(n // 3, n // 3)))
         M = without_zeros(M)
         M.sort_indices()
         n = M.shape[0]
