@@ -288,3 +288,38 @@ def test_float32_preconditioner_finds_the_same_eigenpairs_in_as_many_iterations(
     np.testing.assert_allclose(got[np.float32].eigenvalues, got[np.float64].eigenvalues, rtol=1e-10)
     assert abs(got[np.float32].info["iterations"] - got[np.float64].info["iterations"]) <= 1
     assert got[np.float32].residuals.max() <= eigen.LOBPCG_ACCEPT
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_chebyshev_step_matches_a_loop_oracle_bit_for_bit(dtype, monkeypatch):
+    """The smoother's update ``d <- a d + c r; x <- x + d`` in ``d``'s precision: the compiled pass,
+    numpy's (small, 1-D or strided arrays, or no numba) and a loop over the entries agree bit for
+    bit (no fused multiply-add, the coefficients rounded to ``d``'s precision first)."""
+    from sc_fem.fem import bsr
+
+    rng = np.random.default_rng(7)
+    a, c = 0.7312345678901, -1.2345678901e-3
+    n = bsr.CHEBYSHEV_STEP_MIN // 4 + 3                              # 4 columns: the compiled pass
+    d0, r, x0 = (rng.standard_normal((n, 4)).astype(dtype) for _ in range(3))
+    A, C = dtype(a), dtype(c)
+    want_d, want_x = d0.copy(), x0.copy()
+    for i in range(0, n, 997):                                     # loop oracle on every 997th row
+        for j in range(4):
+            v = dtype(want_d[i, j] * A) + dtype(C * r[i, j])
+            want_d[i, j], want_x[i, j] = v, dtype(x0[i, j] + v)
+    rows = np.arange(0, n, 997)
+    for kernel in ("compiled", "numpy"):
+        if kernel == "numpy":
+            monkeypatch.setattr(bsr, "_chebyshev_step", None)
+        elif bsr._chebyshev_step is None:
+            continue                                               # numba absent: numpy's pass below
+        d, x = d0.copy(), x0.copy()
+        bsr.chebyshev_step(d, r, x, a, c)
+        np.testing.assert_array_equal(d[rows], want_d[rows])
+        np.testing.assert_array_equal(x[rows], want_x[rows])
+        assert d.dtype == dtype and x.dtype == dtype
+    monkeypatch.undo()
+    d, x = d0[:, 1].copy(), x0[:, 1].copy()                         # 1-D: numpy's passes
+    bsr.chebyshev_step(d, r[:, 1], x, a, c)
+    np.testing.assert_array_equal(d[rows], want_d[rows, 1])
+    np.testing.assert_array_equal(x[rows], want_x[rows, 1])

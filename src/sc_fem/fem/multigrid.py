@@ -17,7 +17,7 @@ from scipy.sparse.linalg import LinearOperator
 from .._jit import blas_single_threaded, choose_kernel
 from ..errors import InputError
 from ..lattice.cubes import CubeModel
-from .bsr import NodeBlockProduct, SplitNodeBlocks, block_diagonal_product, node_blocks
+from .bsr import NodeBlockProduct, SplitNodeBlocks, block_diagonal_product, chebyshev_step, node_blocks
 
 def _coarse_solver(a: np.ndarray):
     """``b -> A^-1 b`` for the dense coarsest matrix of the hierarchy: a Cholesky factor when
@@ -140,10 +140,8 @@ class _Level:
         for _ in range(CHEBYSHEV["degree"] - 1):
             self.smoothing.scaled_residual(self.Dinv, d, None, add_to=r)
             rho_new = 1.0 / (2.0 * sigma - rho)
-            d *= rho_new * rho
-            d += (2.0 * rho_new / delta) * r
+            chebyshev_step(d, r, x, rho_new * rho, 2.0 * rho_new / delta)   # d = a d + c r; x += d
             rho = rho_new
-            x += d
         return x
 
 
