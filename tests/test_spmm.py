@@ -308,18 +308,28 @@ def test_chebyshev_step_matches_a_loop_oracle_bit_for_bit(dtype, monkeypatch):
             v = dtype(want_d[i, j] * A) + dtype(C * r[i, j])
             want_d[i, j], want_x[i, j] = v, dtype(x0[i, j] + v)
     rows = np.arange(0, n, 997)
+    compiled, calls = bsr._chebyshev_step, []
     for kernel in ("compiled", "numpy"):
         if kernel == "numpy":
             monkeypatch.setattr(bsr, "_chebyshev_step", None)
-        elif bsr._chebyshev_step is None:
+        elif compiled is None:
             continue                                               # numba absent: numpy's pass below
+        else:                                                      # the compiled pass is the one that ran
+            monkeypatch.setattr(bsr, "_chebyshev_step", lambda *args: calls.append(1) or compiled(*args))
         d, x = d0.copy(), x0.copy()
         bsr.chebyshev_step(d, r, x, a, c)
         np.testing.assert_array_equal(d[rows], want_d[rows])
         np.testing.assert_array_equal(x[rows], want_x[rows])
         assert d.dtype == dtype and x.dtype == dtype
+    assert len(calls) == (compiled is not None)
     monkeypatch.undo()
     d, x = d0[:, 1].copy(), x0[:, 1].copy()                         # 1-D: numpy's passes
     bsr.chebyshev_step(d, r[:, 1], x, a, c)
     np.testing.assert_array_equal(d[rows], want_d[rows, 1])
     np.testing.assert_array_equal(x[rows], want_x[rows, 1])
+    wide = np.zeros((n, 8), dtype=dtype)                            # a strided view: numpy's passes
+    d, x = wide[:, ::2], x0.copy()
+    d[...] = d0
+    bsr.chebyshev_step(d, r, x, a, c)
+    np.testing.assert_array_equal(d[rows], want_d[rows])
+    np.testing.assert_array_equal(x[rows], want_x[rows])

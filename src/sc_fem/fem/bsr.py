@@ -404,9 +404,10 @@ def _chebyshev_step_py(d, r, x, a, c):  # pragma: no cover - compiled
 
 _chebyshev_step = compiled_parallel(_chebyshev_step_py)
 
-CHEBYSHEV_STEP_MIN = 1 << 15
-"""Fewest entries of ``d`` for which :func:`chebyshev_step` runs compiled (below, numpy's passes
-cost less than starting the cores)."""
+CHEBYSHEV_STEP_MIN = 1 << 13
+"""Fewest entries of ``d`` for which :func:`chebyshev_step` runs compiled. Measured on float32
+blocks of 8 columns (median of 200 calls): 1,024 entries 3.1 us compiled against 2.4 us for numpy's
+passes, 8,192 entries 3.7 us against 4.9 us, 32,768 6.6 us against 16.4 us."""
 
 
 def chebyshev_step(d: np.ndarray, r: np.ndarray, x: np.ndarray, a: float, c: float) -> None:

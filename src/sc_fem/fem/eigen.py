@@ -209,12 +209,11 @@ class EigenSolver:
             raise InputError(f"sigma must be a negative shift (below every eigenvalue), got {sigma!r}")
         self.sigma = float(sigma)
         self.method, self.backend, self.reason, self._auto, self._requested_backend = method, backend, "", False, backend
-        self.near_null, self.aggregates = near_null, aggregates
-        self.start = near_null if start is None else start
+        self.near_null, self.aggregates, self.start = near_null, aggregates, near_null if start is None else start
         self.tol, self.lobpcg_tol, self.maxiter, self.max_memory, self.seed = tol, lobpcg_tol, maxiter, max_memory, seed
         self.n_setups, self._setup_seconds, self._info, self.lattice = 0, 0.0, {}, bool(lattice)
         self._op = None                       # OPinv (shift-invert) or the V-cycle (LOBPCG)
-        self._shifted = self._analysis = self._ritz = None  # K - sigma M and its fill, from _setup to _build
+        self._shifted = self._analysis = None  # K - sigma M and its fill (FillAnalysis), from _setup to _build
 
     def _setup(self, k: int) -> None:
         self._shifted, self.reason = self._shift(), "requested"
@@ -251,12 +250,10 @@ class EigenSolver:
             Mp = self.M if isinstance(self.M, ComponentMass) else None       # (a set-up that failed)
             if Mp is None and sp.issparse(self.M):   # M's nonzeros, as m (x) I_3 when it is (a ninth of M)
                 Mp = ComponentMass.of(self.M)
-                if self.overwrite:
-                    self.M = Mp if Mp is not None else without_zeros(self.M)
-            if self.overwrite:                       # K's products from the blocks
+            if self.overwrite:                       # M's lean form kept; K's products from the blocks
+                self.M = Mp if Mp is not None else without_zeros(self.M)
                 self.K = None
-            # node blocks now, the CSR's values reordered into them in place (A is the solver's own:
-            # K - sigma M written over K, or a new matrix): no second copy of the values, 648 B/DOF
+            # node blocks, the values reordered in place (A is the solver's own): no second copy, 648 B/DOF
             A = node_blocks(A, overwrite=True) if bs == 3 else A
             try:
                 amg = LatticeAMG(A, self.near_null, aggregates=self.aggregates, blocksize=bs, seed=self.seed,
@@ -267,9 +264,7 @@ class EigenSolver:
                 raise
             del A
             self._products = amg.levels[0], Mp if Mp is not None else BlockProduct(self.M)   # K - sigma M, M
-            # K X, M X for Rayleigh--Ritz from the same products, also when K is kept (no overwrite)
-            self._ritz = ShiftedStiffness(*self._products, self.sigma, self._products[0].A), self._products[1]
-            self.K = self._ritz[0] if self.K is None else self.K
+            self.K = self._ritz_operators()[0] if self.K is None else self.K
             self._op, self.backend = amg.operator(), "pyamg"      # pyamg aggregation and tentative prolongator
             self._info["levels"] = len(amg.levels)
         self._info["factor_memory_estimate"] = factor_memory_estimate(self.n, self.nnz, self._analysis)
@@ -277,6 +272,14 @@ class EigenSolver:
         self._setup_seconds += time.perf_counter() - t0
         what = f"{self.backend} factorization" if self.method == "shift-invert" else f"AMG hierarchy ({self._info['levels']} levels)"
         _LOG.info(f"    {what} of {self.n:,} DOFs: {time.perf_counter() - t0:.2f} s")
+
+    def _ritz_operators(self) -> tuple:
+        """``K``, ``M`` for Rayleigh--Ritz: LOBPCG's own products (the node blocks, ``M``'s node matrix),
+        also where the caller kept ``K`` and ``M``; the matrices after shift-invert's set-up."""
+        if self.method != "lobpcg":
+            return self.K, self.M
+        A, Mp = self._products
+        return (self.K if isinstance(self.K, ShiftedStiffness) else ShiftedStiffness(A, Mp, self.sigma, A.A)), Mp
 
     def _lobpcg_failed(self, worst: float, info: dict) -> None:
         """LOBPCG stopped with a wanted pair's relative residual above :data:`LOBPCG_ACCEPT`: switch
@@ -387,8 +390,7 @@ class EigenSolver:
             X, info = self._eigsh(k) if self.method == "shift-invert" else self._lobpcg(k)
             secs["solve"] = secs.get("solve", 0.0) + time.perf_counter() - t0
             t0 = time.perf_counter()
-            lam, X, KX, MX = rayleigh_ritz(*(self._ritz if self.method == "lobpcg" else (self.K, self.M)),
-                                           np.asarray(X), k)
+            lam, X, KX, MX = rayleigh_ritz(*self._ritz_operators(), np.asarray(X), k)
             secs["rayleigh_ritz"] = secs.get("rayleigh_ritz", 0.0) + time.perf_counter() - t0
             if not (np.all(np.isfinite(lam)) and np.all(np.isfinite(X))):
                 raise SolverError(f"the eigensolver ({self.method}) returned non-finite values")

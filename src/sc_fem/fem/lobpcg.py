@@ -90,9 +90,15 @@ def projected_iterations(history: list[np.ndarray], tol: float, window: int) -> 
     window = min(window, it)                               # a check before the window: what there is
     if window < 1:
         return float("inf")
-    now, before = float(np.max(history[-1])), float(np.max(history[-1 - window]))
+    return _extrapolated(it, float(np.max(history[-1 - window])) / tol, float(np.max(history[-1])) / tol, window)
+
+
+def _extrapolated(it: int, before: float, now: float, window: int) -> float:
+    """The iteration at which a residual that fell from ``before`` to ``now`` (over the tolerance)
+    in ``window`` iterations, up to ``it``, would reach the tolerance falling on at that rate (its
+    logarithm, linearly); ``inf`` when it did not fall."""
     rate = np.log(before / now) / window if now > 0 and before > 0 else 0.0
-    return it + max(np.log(now / tol), 0.0) / rate if rate > 0 else float("inf")
+    return it + max(np.log(now), 0.0) / rate if rate > 0 else float("inf")
 
 
 def _product(A) -> Product:
@@ -276,7 +282,7 @@ def lobpcg(A, B, X0: np.ndarray, k: int, tol: float, *, T=None, maxiter: int = 4
                 stop = "over budget"
                 break
             if prev is not None and (window_best >= prev or
-                                     it + checks[1] * np.log(window_best) / np.log(prev / window_best) > maxiter):
+                                     _extrapolated(it, prev, window_best, checks[1]) > maxiter):
                 stop = "stalled" if window_best >= prev else "slow"
                 break
             prev, window_best, next_check = window_best, np.inf, next_check + checks[1]

@@ -122,11 +122,10 @@ def shifted(K: sp.spmatrix, M: sp.spmatrix, sigma: float) -> sp.csr_matrix:
         A new matrix (sharing ``K``'s index arrays when the patterns are one).
     """
     K, M = sp.csr_matrix(K), sp.csr_matrix(M)
-    if _same_pattern(K, M):                                    # one new array of the values' size
-        data = np.array(K.data, dtype=np.float64)
-        daxpy(M.data, data, a=-sigma)
+    data = np.array(K.data, dtype=np.float64)                  # one new array of the values' size
+    if _same_pattern(K, M):
+        data = daxpy(M.data, data, a=-sigma)                   # in place (float64, contiguous)
         return sp.csr_matrix((data, K.indices, K.indptr), shape=K.shape)
-    data = np.array(K.data, dtype=np.float64)
     if _subtract_subset(K, M, sigma, data):                    # M's entries among K's: K's pattern
         return sp.csr_matrix((data, K.indices, K.indptr), shape=K.shape)
     return (K - sigma * M).tocsr()
@@ -298,9 +297,8 @@ class ComponentMass:
             return cls(sp.csr_matrix((data, indices, indptr), shape=(n // 3, n // 3)))
         M = without_zeros(M)
         M.sort_indices()
-        n = M.shape[0]
         cnt = np.diff(M.indptr)
-        if n % 3 or not (np.array_equal(cnt[0::3], cnt[1::3]) and np.array_equal(cnt[0::3], cnt[2::3])):
+        if not (np.array_equal(cnt[0::3], cnt[1::3]) and np.array_equal(cnt[0::3], cnt[2::3])):
             return None
         c0 = cnt[0::3]
         indptr = np.zeros(n // 3 + 1, dtype=M.indptr.dtype)
